@@ -1,0 +1,123 @@
+"""Measured (or simulated) joint data, and its CSV form (the measured-data format of DESIGN.md)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from envs.errors import DataError
+
+__all__ = ["Dataset", "write_csv"]
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """Joint data on one time grid.
+
+    Attributes:
+        time: (N,) strictly increasing sample times [s].
+        q: (N, nv) joint angles [rad].
+        tau: (N, nv) measured joint torque [N m]; zero (known exactly) on unactuated joints.
+        joint_names: (nv,) joint names as in the MJCF.
+        actuated: (nv,) True where the joint is driven (its torque column is a measurement).
+        dq: (N, nv) joint velocities [rad/s], or None when not measured.
+        ddq: (N, nv) joint accelerations [rad/s^2]: only the simulator knows them exactly; None otherwise.
+        tau_cmd: (N, nv) commanded torque [N m] where it differs from the measured one, or None.
+        source: where the data came from (a file path or "simulation"), used in error messages.
+        meta: free-form facts about how the data was made (seed, sensor, saturation, ...).
+    """
+
+    time: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    joint_names: tuple[str, ...]
+    actuated: np.ndarray
+    dq: np.ndarray | None = None
+    ddq: np.ndarray | None = None
+    tau_cmd: np.ndarray | None = None
+    source: str = "simulation"
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n, nv = len(self.time), len(self.joint_names)
+        if self.time.ndim != 1 or n < 2:
+            raise DataError(f"{self.source}: time must be a 1-D array of >= 2 samples, got shape {self.time.shape}")
+        for name in ("q", "tau", "dq", "ddq", "tau_cmd"):
+            value = getattr(self, name)
+            if value is not None and value.shape != (n, nv):
+                raise DataError(f"{self.source}: {name} has shape {value.shape}, expected ({n}, {nv})")
+        if np.asarray(self.actuated).shape != (nv,):
+            raise DataError(f"{self.source}: actuated has shape {np.shape(self.actuated)}, expected ({nv},)")
+        steps = np.diff(self.time)
+        if np.any(steps <= 0):
+            row = int(np.argmax(steps <= 0)) + 1
+            raise DataError(f"{self.source}: column 'time' is not strictly increasing at row {row}")
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.time)
+
+    @property
+    def dt(self) -> float:
+        """Median sample interval [s]."""
+        return float(np.median(np.diff(self.time)))
+
+    def slice(self, start: int, stop: int) -> Dataset:
+        """Rows [start, stop) as a new dataset."""
+        rows = slice(start, stop)
+
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[rows]
+
+        return Dataset(
+            time=self.time[rows],
+            q=self.q[rows],
+            tau=self.tau[rows],
+            joint_names=self.joint_names,
+            actuated=self.actuated,
+            dq=cut(self.dq),
+            ddq=cut(self.ddq),
+            tau_cmd=cut(self.tau_cmd),
+            source=self.source,
+            meta=self.meta,
+        )
+
+
+def write_csv(dataset: Dataset, path: Path) -> None:
+    """Write a dataset in the measured-data format, atomically (a reader never sees half a file).
+
+    Columns: `time`, `q_<joint>`, `dq_<joint>` (when known), `tau_<joint>` (actuated joints),
+    `tau_cmd_<joint>` (when known, actuated joints) and `ddq_<joint>` (simulated data only).
+    """
+    names = dataset.joint_names
+    act = [j for j, a in enumerate(dataset.actuated) if a]
+    columns = [("time", dataset.time)]
+    columns += [(f"q_{n}", dataset.q[:, j]) for j, n in enumerate(names)]
+    if dataset.dq is not None:
+        columns += [(f"dq_{n}", dataset.dq[:, j]) for j, n in enumerate(names)]
+    columns += [(f"tau_{names[j]}", dataset.tau[:, j]) for j in act]
+    if dataset.tau_cmd is not None:
+        columns += [(f"tau_cmd_{names[j]}", dataset.tau_cmd[:, j]) for j in act]
+    if dataset.ddq is not None:
+        columns += [(f"ddq_{n}", dataset.ddq[:, j]) for j, n in enumerate(names)]
+    table = np.column_stack([c for _, c in columns])
+    header = ",".join(n for n, _ in columns)
+    atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=header, comments="", fmt="%.10g"))
+
+
+def atomic_write(path: Path, write) -> None:  # type: ignore[no-untyped-def]
+    """Write through `write(file)` into a temporary file beside `path`, then rename it into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,25 @@
+"""The project's exception hierarchy: domain failures that a caller may want to catch as one."""
+
+from __future__ import annotations
+
+__all__ = ["DataError", "InfeasibleExcitationError", "ModelError", "RankDeficientError", "SysIdError"]
+
+
+class SysIdError(Exception):
+    """Base class of every domain failure raised by the harness."""
+
+
+class ModelError(SysIdError, ValueError):
+    """An MJCF model the harness cannot use (unsupported joint type, mismatched parsers, ...)."""
+
+
+class DataError(SysIdError, ValueError):
+    """Measured or simulated data that cannot be used as it is (bad columns, NaN, time order, ...)."""
+
+
+class InfeasibleExcitationError(SysIdError, ValueError):
+    """No trajectory meets the limits; the message names the binding constraint."""
+
+
+class RankDeficientError(SysIdError, ValueError):
+    """The regressor does not excite the parameters that were asked for."""

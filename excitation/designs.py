@@ -1,0 +1,185 @@
+"""Feasible Fourier designs: the default rule, random draws, and scaling a shape into the limits."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from envs.errors import InfeasibleExcitationError
+from envs.plant import Plant
+from envs.simulate import inverse_dynamics
+from excitation.fourier import FourierDesign
+from excitation.limits import Limits
+
+__all__ = ["default_design", "fit_to_limits", "grid", "random_design", "torque_rollout"]
+
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def grid(design: FourierDesign, points_per_period: int = 400) -> np.ndarray:
+    """Times covering one period densely enough for the highest harmonic (>= 25 points per its period)."""
+    n = max(points_per_period, 25 * design.harmonics)
+    return np.arange(n) * (design.period_s / n)
+
+
+def default_design(
+    plant: Plant, limits: Limits, *, harmonics: int, base_freq_hz: float, torque_driven: bool = False
+) -> FourierDesign:
+    """The fixed default shape, scaled to the limits.
+
+    Every joint gets every harmonic with amplitude 1/l and phases spread by the golden ratio over joints
+    and harmonics, so that no two joints move alike and every base parameter is excited.
+    """
+    n = plant.nv
+    phase = 2 * np.pi * _GOLDEN * (np.arange(n)[:, None] * harmonics + np.arange(harmonics)[None, :] + 1) * 3.0
+    amp = 1.0 / np.arange(1, harmonics + 1)[None, :]
+    shape = FourierDesign(base_freq_hz, amp * np.cos(phase), amp * np.sin(phase), _centre(limits))
+    return _fit(plant, shape, limits, torque_driven)
+
+
+def random_design(
+    plant: Plant,
+    limits: Limits,
+    *,
+    harmonics: int,
+    base_freq_hz: float,
+    rng: np.random.Generator,
+    torque_driven: bool = False,
+) -> FourierDesign:
+    """A random shape (Gaussian coefficients, amplitude falling as 1/l), scaled to the limits."""
+    n = plant.nv
+    amp = 1.0 / np.arange(1, harmonics + 1)[None, :]
+    shape = FourierDesign(
+        base_freq_hz, rng.normal(size=(n, harmonics)) * amp, rng.normal(size=(n, harmonics)) * amp, _centre(limits)
+    )
+    return _fit(plant, shape, limits, torque_driven)
+
+
+def _fit(plant: Plant, shape: FourierDesign, limits: Limits, torque_driven: bool) -> FourierDesign:
+    if torque_driven:
+        mask = plant.actuated[:, None]
+        shape = FourierDesign(shape.base_freq_hz, shape.a * mask, shape.b * mask, np.zeros(plant.nv))
+        return fit_torque_design(plant, shape, limits)
+    return fit_to_limits(plant, shape, limits)
+
+
+def _centre(limits: Limits) -> np.ndarray:
+    finite = np.isfinite(limits.q_min) & np.isfinite(limits.q_max)
+    return np.where(finite, 0.5 * (np.where(finite, limits.q_min, 0) + np.where(finite, limits.q_max, 0)), 0.0)
+
+
+def fit_to_limits(
+    plant: Plant, shape: FourierDesign, limits: Limits, *, min_motion_rad: float = 0.02
+) -> FourierDesign:
+    """Scale a position design's amplitudes to the largest that keeps every limit on a dense grid.
+
+    Raises:
+        InfeasibleExcitationError: the offset already breaks a limit, or the limits leave less than
+            `min_motion_rad` of motion on every joint (the message names the binding bound).
+    """
+    t = grid(shape)
+    _, dq1, ddq1 = shape.evaluate(t)
+    dq_unit = np.max(np.abs(dq1), axis=0)
+    ddq_unit = np.max(np.abs(ddq1), axis=0)
+    dev = shape.evaluate(t)[0] - shape.q0
+    up, down = np.max(dev, axis=0), np.max(-dev, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bounds = {
+            "q": np.min(np.concatenate([(limits.q_max - shape.q0) / up, (shape.q0 - limits.q_min) / down])),
+            "dq": np.min(limits.dq_max / dq_unit),
+            "ddq": np.min(limits.ddq_max / ddq_unit),
+        }
+    if bounds["q"] < 0:
+        raise InfeasibleExcitationError(f"offset q0 = {shape.q0} lies outside the joint range (binding: q)")
+    s_hi = float(min(bounds.values()))
+    binding = min(bounds, key=lambda k: bounds[k])
+
+    def torque_ratio(s: float) -> float:
+        q, dq, ddq = shape.scaled(s).evaluate(t)
+        return float(np.max(np.abs(inverse_dynamics(plant, q, dq, ddq)) / limits.tau_max))
+
+    if torque_ratio(0.0) > 1.0:
+        raise InfeasibleExcitationError(
+            f"holding the offset q0 = {shape.q0} already needs more torque than tau_max = {limits.tau_max} "
+            "(binding: tau)"
+        )
+    if torque_ratio(s_hi) > 1.0:
+        binding, lo, hi = "tau", 0.0, s_hi
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if torque_ratio(mid) <= 1.0 else (lo, mid)
+        s_hi = lo
+    motion = float(np.max(np.maximum(up, down)) * s_hi)
+    if motion < min_motion_rad:
+        raise InfeasibleExcitationError(
+            f"the limits allow at most {motion:.3g} rad of motion (< {min_motion_rad} rad): binding constraint "
+            f"{binding} ({limits.binding({binding: 1.0}, dev, dq1)}); relax it or lower the base frequency"
+        )
+    return shape.scaled(s_hi)
+
+
+def torque_rollout(
+    plant: Plant, designs: list[FourierDesign], *, periods: float = 2.0, q0: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Batched open-loop MuJoCo rollouts of torque designs from rest (`mujoco.rollout`).
+
+    Returns:
+        q, dq: (batch, nstep, nv) joint positions [rad] and velocities [rad/s] at every physics step.
+    """
+    m = plant.mj_model
+    dt = m.opt.timestep
+    nstep = int(round(periods * designs[0].period_s / dt))
+    t = np.arange(nstep) * dt
+    act_joint = np.array([int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)], dtype=int)
+    gear = m.actuator_gear[:, 0]
+    control = np.stack([d.torque(t)[:, act_joint] / gear for d in designs])
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    data = mujoco.MjData(m)
+    if q0 is not None:
+        data.qpos[:] = q0
+    state0 = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, data, state0, spec)
+    states, _ = rollout.rollout(m, data, state0[None, :], control)
+    # the full-physics state is [time, qpos, qvel, act, ...]
+    q = states[:, :, 1 : 1 + m.nq]
+    dq = states[:, :, 1 + m.nq : 1 + m.nq + m.nv]
+    return q, dq
+
+
+def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, periods: float = 3.0) -> FourierDesign:
+    """Scale a torque design to the largest amplitude whose simulated response keeps every limit.
+
+    The response is nonlinear in the amplitude, so a batch of scales is rolled out at once and the largest
+    feasible one is kept, then refined once around it.
+
+    Raises:
+        InfeasibleExcitationError: even the smallest tried amplitude breaks a limit (named in the message).
+    """
+    t = grid(shape)
+    peak = np.max(np.abs(shape.torque(t)), axis=0)
+    with np.errstate(divide="ignore"):
+        s_tau = float(np.min(np.where(peak > 0, limits.tau_max / peak, np.inf)))
+    lo, hi = 0.0, s_tau
+    last_ratios: dict[str, float] = {}
+    for _ in range(2):
+        scales = np.linspace(hi / 16, hi, 16) if lo == 0 else np.linspace(lo, hi, 16)
+        q, dq = torque_rollout(plant, [shape.scaled(s) for s in scales], periods=periods)
+        ok = []
+        for b in range(len(scales)):
+            last_ratios = limits.ratios(q[b], dq[b])
+            ok.append(max(last_ratios.values()) <= 1.0)
+        feasible = np.flatnonzero(ok)
+        if feasible.size == 0:
+            if lo > 0:
+                break
+            raise InfeasibleExcitationError(
+                f"no torque amplitude down to {scales[0]:.3g} x the shape keeps the limits: binding constraint "
+                f"{limits.binding(last_ratios, q[-1], dq[-1])}"
+            )
+        best = int(feasible.max())
+        lo = float(scales[best])
+        if best == len(scales) - 1:
+            break
+        hi = float(scales[best + 1])
+    return shape.scaled(lo)

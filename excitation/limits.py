@@ -1,0 +1,106 @@
+"""Limits an excitation must respect: joint range (MJCF), speed and acceleration (config), torque (MJCF)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from envs.plant import Plant
+
+__all__ = ["Limits", "limits_for"]
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Per-joint bounds, each (n,); +-inf where a bound does not apply.
+
+    Attributes:
+        q_min, q_max: joint range [rad], already shrunk by the safety margin.
+        dq_max: speed bound [rad/s].
+        ddq_max: acceleration bound [rad/s^2].
+        tau_max: torque bound [N m] (the actuator's limit times the torque margin; inf where unactuated).
+        joint_names: names used in messages.
+    """
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    dq_max: np.ndarray
+    ddq_max: np.ndarray
+    tau_max: np.ndarray
+    joint_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        for name in ("q_min", "q_max", "dq_max", "ddq_max", "tau_max"):
+            if np.shape(getattr(self, name)) != (n,):
+                raise ValueError(f"limit {name} has shape {np.shape(getattr(self, name))}, expected ({n},)")
+        if np.any(self.q_min >= self.q_max):
+            raise ValueError(f"empty joint range: q_min {self.q_min} >= q_max {self.q_max}")
+        for name in ("dq_max", "ddq_max", "tau_max"):
+            if np.any(getattr(self, name) <= 0):
+                raise ValueError(f"limit {name} must be > 0, got {getattr(self, name)}")
+
+    def ratios(
+        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray | None = None, tau: np.ndarray | None = None
+    ) -> dict[str, float]:
+        """Worst use of each bound over the samples (<= 1 means it holds): keys `q`, `dq`, `ddq`, `tau`.
+
+        For `q` the ratio is the worst excursion from the range's centre over the half-range, with an
+        out-of-range sample giving > 1 (an unlimited joint gives 0).
+        """
+        finite = np.isfinite(self.q_min) & np.isfinite(self.q_max)
+        center = np.where(finite, 0.5 * (np.where(finite, self.q_min, 0) + np.where(finite, self.q_max, 0)), 0.0)
+        half = 0.5 * (self.q_max - self.q_min)
+        out = {"q": float(np.max(np.abs(q - center) / half)), "dq": float(np.max(np.abs(dq) / self.dq_max))}
+        if ddq is not None:
+            out["ddq"] = float(np.max(np.abs(ddq) / self.ddq_max))
+        if tau is not None:
+            out["tau"] = float(np.max(np.abs(tau) / self.tau_max))
+        return out
+
+    def binding(self, ratios: dict[str, float], q: np.ndarray, dq: np.ndarray) -> str:
+        """A readable name of the most used bound, e.g. `dq[elbow] <= 8 rad/s`."""
+        key = max(ratios, key=lambda k: ratios[k])
+        units = {"q": "rad", "dq": "rad/s", "ddq": "rad/s^2", "tau": "N m"}
+        bound = {"q": self.q_max, "dq": self.dq_max, "ddq": self.ddq_max, "tau": self.tau_max}[key]
+        return f"{key} <= {units[key]} bound {np.array2string(bound, precision=4)} (joints {list(self.joint_names)})"
+
+    def to_dict(self) -> dict[str, list[float]]:
+        def clean(a: np.ndarray) -> list[float]:
+            return [float(x) if np.isfinite(x) else None for x in a]  # type: ignore[misc]
+
+        return {k: clean(getattr(self, k)) for k in ("q_min", "q_max", "dq_max", "ddq_max", "tau_max")}
+
+
+def limits_for(
+    plant: Plant,
+    *,
+    velocity: float | list[float],
+    acceleration: float | list[float],
+    range_margin: float = 0.05,
+    torque_margin: float = 0.9,
+) -> Limits:
+    """Limits from the MJCF (range, actuator torque) and the config (speed, acceleration).
+
+    Args:
+        velocity: speed bound per joint (or one for all) [rad/s].
+        acceleration: acceleration bound per joint (or one for all) [rad/s^2].
+        range_margin: fraction of each finite joint range kept free at both ends.
+        torque_margin: fraction of the actuator's torque limit the nominal model may use.
+    """
+    n = plant.nv
+    lo, hi = plant.q_range[:, 0].copy(), plant.q_range[:, 1].copy()
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    shrink = range_margin * (hi - lo)
+    lo[finite] += shrink[finite]
+    hi[finite] -= shrink[finite]
+    tau = np.where(plant.actuated, plant.tau_limit * torque_margin, np.inf)
+    return Limits(
+        q_min=lo,
+        q_max=hi,
+        dq_max=np.broadcast_to(np.asarray(velocity, dtype=float), (n,)).copy(),
+        ddq_max=np.broadcast_to(np.asarray(acceleration, dtype=float), (n,)).copy(),
+        tau_max=tau,
+        joint_names=plant.joint_names,
+    )

@@ -1,0 +1,76 @@
+"""Excitation designs chosen by name."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from envs.plant import Plant
+from excitation.designs import default_design, random_design
+from excitation.fourier import FourierDesign
+from excitation.limits import Limits
+from identify.model import ParameterModel
+
+__all__ = ["EXCITATIONS", "design_excitation"]
+
+
+def _default(plant: Plant, limits: Limits, *, harmonics: int, base_freq_hz: float, torque_driven: bool, **_: Any):  # type: ignore[no-untyped-def]
+    return default_design(plant, limits, harmonics=harmonics, base_freq_hz=base_freq_hz, torque_driven=torque_driven)
+
+
+def _random(  # type: ignore[no-untyped-def]
+    plant: Plant,
+    limits: Limits,
+    *,
+    harmonics: int,
+    base_freq_hz: float,
+    torque_driven: bool,
+    rng: np.random.Generator,
+    **_: Any,
+):
+    return random_design(
+        plant, limits, harmonics=harmonics, base_freq_hz=base_freq_hz, rng=rng, torque_driven=torque_driven
+    )
+
+
+EXCITATIONS: dict[str, Callable[..., FourierDesign]] = {"default": _default, "random": _random}
+
+
+def design_excitation(
+    name: str,
+    plant: Plant,
+    limits: Limits,
+    *,
+    model: ParameterModel,
+    harmonics: int,
+    base_freq_hz: float,
+    torque_driven: bool,
+    rng: np.random.Generator,
+    **options: Any,
+) -> FourierDesign:
+    """The excitation called `name` (see `EXCITATIONS`) for `plant` within `limits`.
+
+    Args:
+        model: the parameters the data must identify (a criterion conditions their regressor).
+        harmonics, base_freq_hz: the Fourier family.
+        torque_driven: design a drive torque (underactuated systems) instead of joint positions.
+        rng: randomness (random designs, multi-start).
+        options: design-specific settings from the config.
+
+    Raises:
+        ValueError: unknown name (the message lists the valid ones).
+    """
+    if name not in EXCITATIONS:
+        raise ValueError(f"unknown excitation {name!r}; valid choices: {', '.join(sorted(EXCITATIONS))}")
+    return EXCITATIONS[name](
+        plant,
+        limits,
+        model=model,
+        harmonics=harmonics,
+        base_freq_hz=base_freq_hz,
+        torque_driven=torque_driven,
+        rng=rng,
+        **options,
+    )

@@ -1,0 +1,24 @@
+"""Estimators chosen by name: each takes a `Problem` (and options) and returns an `Estimate`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from identify.estimators.least_squares import ols, wls
+from identify.problem import Estimate, Problem
+
+__all__ = ["ESTIMATORS", "estimate"]
+
+ESTIMATORS: dict[str, Callable[..., Estimate]] = {"ols": ols, "wls": wls}
+
+
+def estimate(name: str, problem: Problem, **options: Any) -> Estimate:
+    """Run the estimator called `name` on `problem`.
+
+    Raises:
+        ValueError: unknown name (the message lists the valid ones).
+    """
+    if name not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {name!r}; valid choices: {', '.join(sorted(ESTIMATORS))}")
+    return ESTIMATORS[name](problem, **options)
