@@ -28,6 +28,10 @@ class Dataset:
         ddq: (N, nv) joint accelerations [rad/s^2]: only the simulator knows them exactly; None otherwise.
         tau_cmd: (N, nv) commanded torque [N m] where it differs from the measured one, or None.
         source: where the data came from (a file path or "simulation"), used in error messages.
+        tau_lead_s: the torque reported at row k acted over an interval centred at time[k] + tau_lead_s [s]:
+            half a sample for a zero-order-hold controller whose command is logged at the start of its
+            interval (the simulator's case), 0 for a torque sampled at the instant. Derivative filters
+            evaluate the states at that time, so that states and torque describe the same instant.
         meta: free-form facts about how the data was made (seed, sensor, saturation, ...).
     """
 
@@ -40,6 +44,7 @@ class Dataset:
     ddq: np.ndarray | None = None
     tau_cmd: np.ndarray | None = None
     source: str = "simulation"
+    tau_lead_s: float = 0.0
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -83,6 +88,7 @@ class Dataset:
             ddq=cut(self.ddq),
             tau_cmd=cut(self.tau_cmd),
             source=self.source,
+            tau_lead_s=self.tau_lead_s,
             meta=self.meta,
         )
 

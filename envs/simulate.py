@@ -173,6 +173,7 @@ def _run(
         actuated=plant.actuated.copy(),
         ddq=ddq,
         tau_cmd=cmd,
+        tau_lead_s=0.5 * dt_sample,  # the command is held over [t_k, t_k + dt)
         meta={
             "q_true": q,
             "dq_true": dq,

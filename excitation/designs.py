@@ -69,16 +69,14 @@ def _centre(limits: Limits) -> np.ndarray:
     return np.where(finite, 0.5 * (np.where(finite, limits.q_min, 0) + np.where(finite, limits.q_max, 0)), 0.0)
 
 
-def fit_to_limits(
-    plant: Plant, shape: FourierDesign, limits: Limits, *, min_motion_rad: float = 0.02
-) -> FourierDesign:
+def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_motion_rad: float = 0.02) -> FourierDesign:
     """Scale a position design's amplitudes to the largest that keeps every limit on a dense grid.
 
     Raises:
         InfeasibleExcitationError: the offset already breaks a limit, or the limits leave less than
             `min_motion_rad` of motion on every joint (the message names the binding bound).
     """
-    t = grid(shape)
+    t = grid(shape, 4000)  # the linear bounds are cheap: check them densely
     _, dq1, ddq1 = shape.evaluate(t)
     dq_unit = np.max(np.abs(dq1), axis=0)
     ddq_unit = np.max(np.abs(ddq1), axis=0)
@@ -95,8 +93,11 @@ def fit_to_limits(
     s_hi = float(min(bounds.values()))
     binding = min(bounds, key=lambda k: bounds[k])
 
+    s_hi *= 1.0 - 1e-6  # stay strictly inside: the continuous maximum may fall between grid points
+    t_tau = grid(shape, 1000)
+
     def torque_ratio(s: float) -> float:
-        q, dq, ddq = shape.scaled(s).evaluate(t)
+        q, dq, ddq = shape.scaled(s).evaluate(t_tau)
         return float(np.max(np.abs(inverse_dynamics(plant, q, dq, ddq)) / limits.tau_max))
 
     if torque_ratio(0.0) > 1.0:
@@ -106,10 +107,10 @@ def fit_to_limits(
         )
     if torque_ratio(s_hi) > 1.0:
         binding, lo, hi = "tau", 0.0, s_hi
-        for _ in range(40):
+        for _ in range(30):
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if torque_ratio(mid) <= 1.0 else (lo, mid)
-        s_hi = lo
+        s_hi = lo * 0.995  # margin for torque peaks between the grid's points
     motion = float(np.max(np.maximum(up, down)) * s_hi)
     if motion < min_motion_rad:
         raise InfeasibleExcitationError(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -33,17 +34,14 @@ class ParameterComparison:
     abs_error: float
     z: float
 
-    def to_dict(self) -> dict[str, float | str | None]:
-        return {k: _json_float(v) for k, v in self.__dict__.items()}
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values; non-finite floats become None (JSON has no NaN)."""
+        return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in self.__dict__.items()}
 
 
-def _json_float(v: object) -> object:
-    if isinstance(v, float) and not np.isfinite(v):
-        return None
-    return v
-
-
-def compare_with_truth(estimate: Estimate, beta_true: np.ndarray, *, zero_tol: float = 1e-9) -> list[ParameterComparison]:
+def compare_with_truth(
+    estimate: Estimate, beta_true: np.ndarray, *, zero_tol: float = 1e-9
+) -> list[ParameterComparison]:
     """Per base parameter: truth, estimate, std, relative error (absolute where the truth is ~0) and z."""
     scale = max(float(np.max(np.abs(beta_true))), 1.0)
     out = []
@@ -64,7 +62,7 @@ def linear_combination(
         ValueError: c @ theta is not identifiable (c is not a combination of the base parameters' rows).
     """
     d, *_ = np.linalg.lstsq(base.K.T, c, rcond=None)
-    if np.linalg.norm(base.K.T @ d - c) > tol * max(np.linalg.norm(c), 1.0):
+    if np.linalg.norm(base.K.T @ d - c) > tol * max(float(np.linalg.norm(c)), 1.0):
         raise ValueError("this combination of standard parameters is not identifiable from the base parameters")
     value = float(d @ estimate.beta)
     std = float(np.sqrt(d @ estimate.cov @ d)) if estimate.cov is not None else float("nan")

@@ -1,22 +1,33 @@
 """Joint velocities and accelerations from sampled positions, chosen by name.
 
 - `simulator`: the simulator's exact states (only simulated datasets carry them): the noise-free reference.
-- `butterworth`: zero-phase Butterworth low-pass of q (filtfilt), then central differences; `trim`
-  samples at each end are dropped afterwards by the caller, where the filter's edge effects live.
+- `butterworth`: zero-phase Butterworth low-pass of q (filtfilt), then central differences. The filter's
+  edge effects are either trimmed (`edges="trim"`) or avoided by periodic padding (`edges="periodic"`, for
+  records that span whole periods of a periodic excitation).
+- `spectral`: differentiation in the frequency domain (multiplication by i omega) over the whole periods of
+  a periodic excitation: exact for a band-limited periodic signal, no edge effects, and with
+  `harmonics_only` every bin that is not a harmonic of the excitation (pure noise) is dropped.
+- `kalman`: Rauch-Tung-Striebel smoother of a white-jerk model (state q, dq, ddq per joint), with the
+  jerk intensity chosen so that the smoother's (zero-phase, 6th-order) cut-off sits at `cutoff_hz`.
+
+Every method takes `cutoff_hz` (None: `cutoff_factor` times the excitation's bandwidth, measured from the
+spectrum of q by `excitation_bandwidth_hz`) and `decimate` (keep every k-th row: the filtered signals carry
+nothing above the cut-off, so neighbouring rows are strongly correlated and add little information).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from scipy import signal
+from scipy import linalg, signal
 
 from envs.dataset import Dataset
 from envs.errors import DataError
 
-__all__ = ["DERIVATIVES", "States", "derive_states"]
+__all__ = ["DERIVATIVES", "States", "derive_states", "excitation_bandwidth_hz"]
 
 
 @dataclass(frozen=True)
@@ -25,7 +36,7 @@ class States:
 
     Attributes:
         q, dq, ddq: (N, nv) [rad, rad/s, rad/s^2].
-        valid: (N,) False where a filter's edge effects make the row unreliable.
+        valid: (N,) False where a filter's edge effects make the row unreliable (or decimation drops it).
     """
 
     q: np.ndarray
@@ -34,34 +45,220 @@ class States:
     valid: np.ndarray
 
 
-def _simulator(data: Dataset, **_: float) -> States:
-    if data.ddq is None or "q_true" not in data.meta:
-        raise DataError(f"{data.source}: derivatives='simulator' needs a simulated dataset with its exact states")
-    return States(data.meta["q_true"], data.meta["dq_true"], data.ddq, np.ones(data.n_samples, bool))
+def excitation_bandwidth_hz(q: np.ndarray, sample_rate_hz: float, *, snr: float = 1e3) -> float:
+    """Highest frequency at which the motion stands clearly above the measurement noise.
+
+    The periodogram of each (Hann-windowed, detrended) joint angle is compared with its noise floor (the
+    median of the upper half of the spectrum); the bandwidth is the highest frequency below fs/4 whose power
+    exceeds `snr` times that floor, the largest over joints.
+
+    Args:
+        q: (N, nv) joint angles [rad].
+        sample_rate_hz: sampling rate [Hz].
+        snr: power ratio over the noise floor that counts as motion.
+
+    Returns:
+        The bandwidth [Hz] (at least two frequency bins).
+    """
+    n = len(q)
+    x = signal.detrend(q, axis=0) * np.hanning(n)[:, None]
+    power = np.abs(np.fft.rfft(x, axis=0)) ** 2
+    f = np.fft.rfftfreq(n, 1.0 / sample_rate_hz)
+    upper = f > sample_rate_hz / 4
+    floor = np.median(power[upper], axis=0) + 1e-30 * np.max(power, axis=0) + 1e-300
+    above = (power > snr * floor) & ~upper[:, None]
+    hits = np.flatnonzero(np.any(above, axis=1))
+    return float(max(f[hits[-1]] if hits.size else 0.0, 2 * f[1]))
 
 
-def _butterworth(data: Dataset, *, cutoff_hz: float = 10.0, order: int = 4, trim_s: float | None = None) -> States:
-    fs = 1.0 / data.dt
-    if not 0 < cutoff_hz < 0.5 * fs:
-        raise ValueError(f"cutoff_hz must lie in (0, {0.5 * fs:g}) Hz for a {fs:g} Hz signal, got {cutoff_hz}")
+def _regular_fs(data: Dataset) -> float:
     jitter = np.max(np.abs(np.diff(data.time) - data.dt)) / data.dt
     if jitter > 0.01:
         raise DataError(f"{data.source}: sampling is irregular ({jitter:.1%} step jitter); resample it first")
-    sos = signal.butter(order, cutoff_hz, fs=fs, output="sos")
-    q = signal.sosfiltfilt(sos, data.q, axis=0)
-    dq = np.gradient(q, data.time, axis=0)
-    ddq = np.gradient(dq, data.time, axis=0)
-    trim = int(np.ceil((trim_s if trim_s is not None else 3.0 / cutoff_hz) * fs))
-    valid = np.zeros(data.n_samples, bool)
-    valid[trim : data.n_samples - trim] = True
-    return States(q, dq, ddq, valid)
+    return 1.0 / data.dt
 
 
-DERIVATIVES: dict[str, Callable[..., States]] = {"butterworth": _butterworth, "simulator": _simulator}
+def _cutoff(data: Dataset, fs: float, cutoff_hz: float | None, cutoff_factor: float) -> float:
+    if cutoff_hz is None:
+        cutoff_hz = min(cutoff_factor * excitation_bandwidth_hz(data.q, fs), 0.4 * fs)
+    if not 0 < cutoff_hz < 0.5 * fs:
+        raise ValueError(f"cutoff_hz must lie in (0, {0.5 * fs:g}) Hz for a {fs:g} Hz signal, got {cutoff_hz}")
+    return float(cutoff_hz)
 
 
-def derive_states(data: Dataset, method: str, **options: float) -> States:
-    """q, dq, ddq of `data` by the named method (see `DERIVATIVES`), with its options."""
+def _decimated(valid: np.ndarray, decimate: int) -> np.ndarray:
+    if int(decimate) < 1:
+        raise ValueError(f"decimate must be a positive integer, got {decimate}")
+    out = valid.copy()
+    out[np.arange(len(valid)) % int(decimate) != 0] = False
+    return out
+
+
+def _whole_periods(data: Dataset, period_s: float | None) -> int:
+    """Number of leading samples that span whole periods (all of them when period_s is None)."""
+    if period_s is None:
+        return data.n_samples
+    per = period_s / data.dt
+    if abs(per - round(per)) > 1e-6 * per:
+        raise ValueError(f"period_s = {period_s} s is not a whole number of {data.dt:g} s samples")
+    periods = data.n_samples // int(round(per))
+    if periods < 1:
+        raise DataError(f"{data.source}: the record ({data.n_samples} samples) is shorter than one period")
+    return periods * int(round(per))
+
+
+def _simulator(data: Dataset, *, decimate: int = 1, **_: Any) -> States:
+    """The exact states (options of the other methods, such as `cutoff_hz`, are accepted and ignored)."""
+    if data.ddq is None or "q_true" not in data.meta:
+        raise DataError(f"{data.source}: derivatives='simulator' needs a simulated dataset with its exact states")
+    valid = _decimated(np.ones(data.n_samples, bool), decimate)
+    return States(data.meta["q_true"], data.meta["dq_true"], data.ddq, valid)
+
+
+def _butterworth(
+    data: Dataset,
+    *,
+    cutoff_hz: float | None = None,
+    cutoff_factor: float = 4.0,
+    order: int = 4,
+    trim_s: float | None = None,
+    edges: str = "trim",
+    period_s: float | None = None,
+    decimate: int = 1,
+) -> States:
+    fs = _regular_fs(data)
+    cutoff = _cutoff(data, fs, cutoff_hz, cutoff_factor)
+    sos = signal.butter(order, cutoff, fs=fs, output="sos")
+    if edges == "trim":
+        q = signal.sosfiltfilt(sos, data.q, axis=0)
+        dq = np.gradient(q, data.time, axis=0)
+        ddq = np.gradient(dq, data.time, axis=0)
+        trim = int(np.ceil((trim_s if trim_s is not None else 3.0 / cutoff) * fs))
+        valid = np.zeros(data.n_samples, bool)
+        valid[trim : data.n_samples - trim - 1] = True
+    elif edges == "periodic":
+        n = _whole_periods(data, period_s)
+        q, dq, ddq = (np.array(data.q) for _ in range(3))
+        pad = min(n, int(np.ceil(6.0 / cutoff * fs)))
+        wrapped = np.concatenate([data.q[n - pad : n], data.q[:n], data.q[:pad]])
+        smooth = signal.sosfiltfilt(sos, wrapped, axis=0, padtype=None)[pad : pad + n]
+        q[:n] = smooth
+        dq[:n] = (np.roll(smooth, -1, axis=0) - np.roll(smooth, 1, axis=0)) * (0.5 * fs)
+        ddq[:n] = (np.roll(smooth, -1, axis=0) - 2 * smooth + np.roll(smooth, 1, axis=0)) * fs**2
+        valid = np.arange(data.n_samples) < n
+    else:
+        raise ValueError(f"unknown edges {edges!r}; valid choices: periodic, trim")
+    return States(q, dq, ddq, _decimated(valid, decimate))
+
+
+def _spectral(
+    data: Dataset,
+    *,
+    period_s: float | None = None,
+    cutoff_hz: float | None = None,
+    cutoff_factor: float = 4.0,
+    harmonics_only: bool = True,
+    decimate: int = 1,
+) -> States:
+    fs = _regular_fs(data)
+    n = _whole_periods(data, period_s)
+    cutoff = _cutoff(data, fs, cutoff_hz, cutoff_factor)
+    spectrum = np.fft.rfft(data.q[:n], axis=0)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    keep = f <= cutoff
+    if harmonics_only and period_s is not None:
+        periods = n // int(round(period_s * fs))
+        keep &= np.arange(len(f)) % periods == 0
+    spectrum[~keep] = 0.0
+    jw = (2j * np.pi * f)[:, None]
+    q, dq, ddq = (np.array(data.q) for _ in range(3))
+    q[:n] = np.fft.irfft(spectrum, n, axis=0)
+    dq[:n] = np.fft.irfft(jw * spectrum, n, axis=0)
+    ddq[:n] = np.fft.irfft(jw**2 * spectrum, n, axis=0)
+    return States(q, dq, ddq, _decimated(np.arange(data.n_samples) < n, decimate))
+
+
+def _kalman(
+    data: Dataset,
+    *,
+    cutoff_hz: float | None = None,
+    cutoff_factor: float = 4.0,
+    sigma_q: float | None = None,
+    trim_s: float | None = None,
+    decimate: int = 1,
+) -> States:
+    """Steady-state RTS smoother of q'''= w (white jerk), one independent filter per joint.
+
+    The smoother's gain |H(f)| = 1 / (1 + (f / f_c)^6) has f_c = (s / (R dt))^(1/6) / (2 pi) for jerk
+    intensity s and measurement variance R; s is set from the requested cut-off. R (`sigma_q`, [rad]) only
+    fixes the scale, so its default (the high-frequency noise of q itself) matters little.
+    """
+    fs = _regular_fs(data)
+    dt = 1.0 / fs
+    cutoff = _cutoff(data, fs, cutoff_hz, cutoff_factor)
+    if sigma_q is None:
+        sigma_q = float(np.median(np.std(np.diff(data.q, 3, axis=0), axis=0)) / np.sqrt(20.0))
+    r = max(sigma_q, 1e-9) ** 2
+    s = r * dt * (2 * np.pi * cutoff) ** 6
+    A = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    Q = s * np.array(
+        [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]]
+    )
+    H = np.array([[1.0, 0.0, 0.0]])
+    P_pred = linalg.solve_discrete_are(A.T, H.T, Q, np.array([[r]]))
+    K = P_pred @ H.T / (P_pred[0, 0] + r)  # (3, 1)
+    P_filt = (np.eye(3) - K @ H) @ P_pred
+    G = P_filt @ A.T @ np.linalg.inv(P_pred)
+    # batched over joints: x has shape (3, nv)
+    n, nv = data.q.shape
+    xf = np.empty((n, 3, nv))
+    x = np.vstack([data.q[0], np.zeros((2, nv))])
+    F, Kz = A - K @ H @ A, K[:, 0]
+    for k in range(n):
+        x = F @ x + np.outer(Kz, data.q[k]) if k else x
+        xf[k] = x
+    xs = np.empty_like(xf)
+    xs[-1] = xf[-1]
+    for k in range(n - 2, -1, -1):
+        xs[k] = xf[k] + G @ (xs[k + 1] - A @ xf[k])
+    trim = int(np.ceil((trim_s if trim_s is not None else 3.0 / cutoff) * fs))
+    valid = np.zeros(n, bool)
+    valid[trim : n - trim - 1] = True
+    return States(xs[:, 0], xs[:, 1], xs[:, 2], _decimated(valid, decimate))
+
+
+def _shift(x: np.ndarray, fraction: float) -> np.ndarray:
+    """x evaluated `fraction` of a sample later (|fraction| <= 1), by linear interpolation; ends held."""
+    if fraction == 0:
+        return x
+    if abs(fraction) > 1:
+        raise ValueError(f"a shift of {fraction} samples is beyond the one-sample interpolation")
+    step = 1 if fraction > 0 else -1
+    neighbour = np.roll(x, -step, axis=0)
+    neighbour[-1 if step > 0 else 0] = x[-1 if step > 0 else 0]
+    return (1 - abs(fraction)) * x + abs(fraction) * neighbour
+
+
+DERIVATIVES: dict[str, Callable[..., States]] = {
+    "butterworth": _butterworth,
+    "kalman": _kalman,
+    "simulator": _simulator,
+    "spectral": _spectral,
+}
+
+
+def derive_states(data: Dataset, method: str, **options: Any) -> States:
+    """q, dq, ddq of `data` by the named method (see `DERIVATIVES`), with its options.
+
+    Raises:
+        ValueError: unknown method (the message lists the valid ones) or a bad option.
+    """
     if method not in DERIVATIVES:
         raise ValueError(f"unknown derivative method {method!r}; valid choices: {', '.join(sorted(DERIVATIVES))}")
-    return DERIVATIVES[method](data, **options)
+    states = DERIVATIVES[method](data, **options)
+    if method == "simulator" or data.tau_lead_s == 0:
+        return states  # the simulator's states already belong to the instant of the torque
+    # Evaluate the (smooth, filtered) states at the instant the reported torque belongs to: a zero-order
+    # hold's half-sample offset would otherwise bias the parameters by about two standard deviations.
+    fraction = data.tau_lead_s / data.dt
+    return States(_shift(states.q, fraction), _shift(states.dq, fraction), _shift(states.ddq, fraction), states.valid)

@@ -1,8 +1,9 @@
 """Ordinary and weighted least squares with parameter covariance.
 
-OLS's covariance is the sandwich (W'W)^-1 W' S W (W'W)^-1 with S the per-joint residual variance, which stays
-right when the joints' noise levels differ. WLS weights each joint's rows by 1/sigma_j^2 (sigma_j from the
-OLS residuals, iterated), so its covariance is (W' S^-1 W)^-1: the Cramer-Rao bound for Gaussian torque noise.
+Both report the sandwich covariance with S the per-joint residual variance, which stays right when the joints'
+noise levels differ or the weights are not the inverse variances. WLS weights each joint's rows by
+1/sigma_j^2 (sigma_j from the residuals, iterated), so its covariance is (W' S^-1 W)^-1: the Cramer-Rao bound
+for Gaussian torque noise.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ def _solve(W: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     sw = np.sqrt(w)
     A = (W * sw[None, :, None]).reshape(-1, W.shape[2])
     b = (y * sw[None, :]).ravel()
-    beta, _, rank, sv = np.linalg.lstsq(A, b, rcond=None)
+    beta, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
     if rank < W.shape[2]:
         raise RankDeficientError(
-            f"the base regressor has rank {rank} < {W.shape[2]} on these data (condition {sv[0] / sv[-1]:.3g}); "
+            f"the base regressor has rank {rank} < {W.shape[2]} on these data; "
             "the excitation does not excite every base parameter"
         )
     return beta
@@ -35,9 +36,28 @@ def _joint_sigma(W: np.ndarray, y: np.ndarray, beta: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(resid**2, axis=0) / dof)
 
 
-def _floor(sigma: np.ndarray) -> np.ndarray:
-    # a joint whose equation is exact (unactuated, noise-free) would get infinite weight
-    return np.maximum(sigma, 1e-9 * max(float(sigma.max()), 1e-12) + 1e-15)
+def _floor(sigma: np.ndarray, actuated: np.ndarray) -> np.ndarray:
+    """Per-joint noise levels safe to weight by.
+
+    An unactuated joint's equation (0 = W_j beta) is homogeneous: its residual comes from errors in the
+    regressor and shrinks with |beta|, so weighting it by its own residual pulls the estimate towards zero.
+    Such rows get at most the weight of the best actuated joint. Exact rows (noise-free data) are floored
+    so that the weights stay finite.
+    """
+    out = sigma.copy()
+    if np.any(actuated) and not np.all(actuated):
+        out[~actuated] = np.maximum(out[~actuated], out[actuated].min())
+    return np.maximum(out, 1e-6 * max(float(out.max()), 1e-300))
+
+
+def _sandwich(W: np.ndarray, weight: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Covariance of a weighted fit with per-joint weights `weight` when joint j's noise std is sigma_j.
+
+    (W'VW)^-1 W'V S V W (W'VW)^-1; it equals (W' S^-1 W)^-1, the Cramer-Rao bound, when V = S^-1.
+    """
+    bread = np.linalg.inv(np.einsum("knr,n,kns->rs", W, weight, W))
+    meat = np.einsum("knr,n,kns->rs", W, weight**2 * sigma**2, W)
+    return bread @ meat @ bread
 
 
 def ols(problem: Problem) -> Estimate:
@@ -45,18 +65,22 @@ def ols(problem: Problem) -> Estimate:
     W, y = problem.W, problem.y
     beta = _solve(W, y, np.ones(W.shape[1]))
     sigma = _joint_sigma(W, y, beta)
-    A = W.reshape(-1, W.shape[2])
-    bread = np.linalg.inv(A.T @ A)
-    meat = np.einsum("knr,n,kns->rs", W, sigma**2, W)
-    return Estimate("ols", problem.names, beta, bread @ meat @ bread, sigma)
+    return Estimate("ols", problem.names, beta, _sandwich(W, np.ones(W.shape[1]), sigma), sigma)
 
 
 def wls(problem: Problem, *, iterations: int = 3) -> Estimate:
     """Weighted least squares with per-joint weights 1/sigma_j^2 re-estimated from the residuals."""
     W, y = problem.W, problem.y
-    sigma = _floor(_joint_sigma(W, y, _solve(W, y, np.ones(W.shape[1]))))
+    actuated = np.asarray(problem.data.actuated, dtype=bool)
+    sigma = _floor(_joint_sigma(W, y, _solve(W, y, np.ones(W.shape[1]))), actuated)
     for _ in range(iterations):
         beta = _solve(W, y, 1.0 / sigma**2)
-        sigma = _floor(_joint_sigma(W, y, beta))
-    info = np.einsum("knr,n,kns->rs", W, 1.0 / sigma**2, W)
-    return Estimate("wls", problem.names, beta, np.linalg.inv(info), sigma, {"iterations": iterations})
+        sigma = _floor(_joint_sigma(W, y, beta), actuated)
+    return Estimate(
+        "wls",
+        problem.names,
+        beta,
+        _sandwich(W, 1.0 / sigma**2, _joint_sigma(W, y, beta)),
+        sigma,
+        {"iterations": iterations},
+    )

@@ -1,0 +1,281 @@
+"""`sysid-run`: excitation design -> MuJoCo simulation -> identification -> truth comparison -> validation.
+
+`run(cfg)` does the work and is what tests call; `main` is the thin Hydra wrapper.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import hydra
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from envs.dataset import Dataset, write_csv
+from envs.plant import Plant, load_plant
+from envs.sensors import SensorModel
+from envs.simulate import inverse_dynamics, simulate_open_loop, simulate_tracking
+from excitation.designs import grid
+from excitation.fourier import FourierDesign
+from excitation.limits import Limits, limits_for
+from excitation.registry import EXCITATIONS, design_excitation
+from harness.results import summary_table, write_json
+from identify.base import BaseParameters, base_parameters
+from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
+from identify.derivatives import DERIVATIVES, derive_states
+from identify.derived import DERIVED
+from identify.estimators import ESTIMATORS, estimate
+from identify.model import ParameterModel
+from identify.problem import Estimate, build_problem
+
+__all__ = ["CONF_DIR", "conditioning", "main", "run"]
+
+RECORD_KINDS = ("none", "rerun")
+# absolute, so that the entry point finds the configs wherever it is called from
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+@contextmanager
+def _timed(timing: dict[str, float], stage: str) -> Iterator[None]:
+    start = time.perf_counter()
+    yield
+    timing[stage] = timing.get(stage, 0.0) + time.perf_counter() - start
+
+
+def _check_choices(cfg: DictConfig) -> None:
+    """Fail before any work when a named choice is unknown."""
+    for label, name, valid in (
+        ("estimator", cfg.estimator.name, ESTIMATORS),
+        ("excitation", cfg.excitation.name, EXCITATIONS),
+        ("identify.derivatives", cfg.identify.derivatives, DERIVATIVES),
+        ("record", cfg.record.kind, RECORD_KINDS),
+    ):
+        if name not in valid:
+            raise ValueError(f"unknown {label} {name!r}; valid choices: {', '.join(sorted(valid))}")
+
+
+def sensor_from_config(cfg: DictConfig, plant: Plant) -> SensorModel:
+    """The sensor model of a system config scaled by the noise config."""
+    sigma_tau = np.broadcast_to(np.asarray(cfg.system.sensor.sigma_tau, dtype=float), (plant.nv,))
+    return SensorModel(
+        sample_rate_hz=float(cfg.system.sensor.sample_rate_hz),
+        sigma_q=float(cfg.noise.sigma_q),
+        q_resolution=float(cfg.noise.q_resolution),
+        sigma_tau=sigma_tau * float(cfg.noise.tau_scale),
+        tau_resolution=float(cfg.system.sensor.tau_resolution) * float(cfg.noise.tau_scale),
+    )
+
+
+def simulate_design(
+    plant: Plant, design: FourierDesign, cfg: DictConfig, sensor: SensorModel, rng: np.random.Generator, periods: float
+) -> Dataset:
+    """Simulate `periods` periods of a design: tracked (position design) or applied open loop (torque design)."""
+    duration = periods * design.period_s
+    if cfg.system.torque_driven:
+        return simulate_open_loop(plant, design.torque, duration_s=duration, sensor=sensor, rng=rng)
+    return simulate_tracking(
+        plant,
+        design,
+        duration_s=duration,
+        sensor=sensor,
+        rng=rng,
+        bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
+    )
+
+
+def conditioning(W: np.ndarray) -> tuple[float, float]:
+    """cond(X'X) of the stacked base regressor (raw) and cond(W) with unit-norm columns."""
+    A = W.reshape(-1, W.shape[-1])
+    s = np.linalg.svd(A, compute_uv=False)
+    norms = np.linalg.norm(A, axis=0)
+    sn = np.linalg.svd(A / np.where(norms > 0, norms, 1.0), compute_uv=False)
+    return float((s[0] / s[-1]) ** 2), float(sn[0] / sn[-1])
+
+
+def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Dataset, torque_driven: bool) -> dict:
+    """Worst use of each bound: on a dense grid of the design (position designs) or the simulated motion."""
+    if torque_driven:
+        return limits.ratios(data.meta["q_true"], data.meta["dq_true"], data.ddq, data.meta["tau_applied"])
+    t = grid(design, 4000)
+    q, dq, ddq = design.evaluate(t)
+    return limits.ratios(q, dq, ddq, inverse_dynamics(plant, q, dq, ddq))
+
+
+def _cutoff(cfg: DictConfig, design: FourierDesign) -> float:
+    if cfg.identify.cutoff_hz is not None:
+        return float(cfg.identify.cutoff_hz)
+    return max(10.0 * design.harmonics * design.base_freq_hz, 5.0)
+
+
+def _identify(
+    cfg: DictConfig, data: Dataset, model: ParameterModel, base: BaseParameters, cutoff_hz: float
+) -> tuple[Estimate, Any]:
+    options = {"cutoff_hz": cutoff_hz} if cfg.identify.derivatives == "butterworth" else {}
+    states = derive_states(data, cfg.identify.derivatives, **options)
+    problem = build_problem(data, states, model, base)
+    return estimate(cfg.estimator.name, problem, **OmegaConf.to_container(cfg.estimator.options)), problem  # type: ignore[arg-type]
+
+
+def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
+    """The whole loop for `cfg.system`; writes results.json, data.csv and recording.rrd into `output_dir`."""
+    _check_choices(cfg)
+    out = Path(output_dir) if output_dir is not None else _hydra_output_dir()
+    timing: dict[str, float] = {}
+    rng_design, rng_noise, rng_base, rng_val = np.random.default_rng(int(cfg.seed)).spawn(4)
+    with _timed(timing, "setup"):
+        plant = load_plant(cfg.system.mjcf)
+        lim = cfg.system.limits
+        limits = limits_for(
+            plant,
+            velocity=list(lim.velocity) if OmegaConf.is_list(lim.velocity) else lim.velocity,
+            acceleration=list(lim.acceleration) if OmegaConf.is_list(lim.acceleration) else lim.acceleration,
+            range_margin=float(lim.range_margin),
+            torque_margin=float(lim.torque_margin),
+        )
+        model = ParameterModel(plant, tuple(cfg.system.effects))
+        base = base_parameters(model, rng_base)
+        sensor = sensor_from_config(cfg, plant)
+    design_kw: dict[str, Any] = {
+        "model": model,
+        "harmonics": int(cfg.excitation.harmonics),
+        "base_freq_hz": float(cfg.system.base_freq_hz),
+        "torque_driven": bool(cfg.system.torque_driven),
+    }
+    with _timed(timing, "excitation"):
+        design = design_excitation(
+            cfg.excitation.name,
+            plant,
+            limits,
+            rng=rng_design,
+            **design_kw,
+            **OmegaConf.to_container(cfg.excitation.options),  # type: ignore[arg-type]
+        )
+    with _timed(timing, "simulation"):
+        data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods))
+    with _timed(timing, "identification"):
+        est, problem = _identify(cfg, data, model, base, _cutoff(cfg, design))
+        beta_true = base.project(model.truth())
+        comparison = compare_with_truth(est, beta_true)
+        derived = _derived(plant, base, est)
+    with _timed(timing, "validation"):
+        val_design = design_excitation("random", plant, limits, rng=rng_val, **design_kw)
+        val_data = simulate_design(plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods))
+        options = {"cutoff_hz": _cutoff(cfg, val_design)} if cfg.identify.derivatives == "butterworth" else {}
+        val_states = derive_states(val_data, cfg.identify.derivatives, **options)
+        rows = val_states.valid
+        val_pred = predict_torque(model, base, est.beta, val_states.q[rows], val_states.dq[rows], val_states.ddq[rows])
+        val_rms = torque_rms(val_pred, val_data.tau[rows], plant.joint_names)
+    cond_xtx, cond_colnorm = conditioning(problem.W)
+    ratios = limit_ratios(plant, design, limits, data, bool(cfg.system.torque_driven))
+    noise_std = np.sqrt(np.asarray(sensor.sigma_tau) ** 2 + sensor.tau_resolution**2 / 12.0) * plant.actuated
+    results: dict[str, Any] = {
+        "system": plant.name,
+        "seed": int(cfg.seed),
+        "estimator": est.estimator,
+        "excitation": {
+            "name": cfg.excitation.name,
+            "cond_XtX": cond_xtx,
+            "cond_W_colnorm": cond_colnorm,
+            "harmonics": design.harmonics,
+            "base_freq_hz": design.base_freq_hz,
+            "period_s": design.period_s,
+            "limits_ok": bool(max(ratios.values()) <= 1.0 + 1e-9),
+            "limit_ratios": ratios,
+            "limits": limits.to_dict(),
+            "coefficients": {"a": design.a, "b": design.b, "q0": design.q0},
+        },
+        "base_parameters": [c.to_dict() for c in comparison],
+        "estimate_names": list(est.names),
+        "max_abs_z": float(max(abs(c.z) for c in comparison)),
+        "derived": derived,
+        "residual_std": dict(zip(plant.joint_names, est.sigma.tolist(), strict=True)),
+        "validation": {
+            "torque_rms": val_rms,
+            "noise_std": dict(zip(plant.joint_names, noise_std.tolist(), strict=True)),
+            "samples": int(rows.sum()),
+        },
+        "data": {
+            "samples": data.n_samples,
+            "duration_s": float(data.time[-1] - data.time[0]),
+            "saturated_fraction": data.meta["saturated_fraction"],
+        },
+        "timing_s": timing,
+        "config": OmegaConf.to_container(cfg, resolve=True),
+    }
+    _write_outputs(out, cfg, results, data, problem, est, model, base)
+    print(summary_table(results))
+    print(f"outputs in {out}")
+    return results
+
+
+def _derived(plant: Plant, base: BaseParameters, est: Estimate) -> list[dict[str, Any]]:
+    if plant.name not in DERIVED:
+        return []
+    out = []
+    for name, (c, unit) in DERIVED[plant.name](plant).items():
+        c_full = np.zeros(base.K.shape[1])
+        c_full[: len(c)] = c
+        value, std = linear_combination(base, est, c_full)
+        true = float(c @ plant.theta)
+        out.append(
+            {
+                "name": name,
+                "unit": unit,
+                "true": true,
+                "estimate": value,
+                "std": std,
+                "z": (value - true) / std if std > 0 else None,
+            }
+        )
+    return out
+
+
+def _write_outputs(
+    out: Path,
+    cfg: DictConfig,
+    results: dict,
+    data: Dataset,
+    problem: Any,
+    est: Estimate,
+    model: ParameterModel,
+    base: BaseParameters,
+) -> None:
+    """data.csv and recording.rrd first, results.json last: a results file means a finished run."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(data, out / "data.csv")
+    if cfg.record.kind == "rerun":
+        from harness.record import record_run
+
+        rows = problem.rows
+        predicted = np.einsum("knr,r->kn", problem.W, est.beta)
+        series = {
+            "time": data.time[rows],
+            "joint_names": data.joint_names,
+            "q": problem.states.q[rows],
+            "dq": problem.states.dq[rows],
+            "tau_measured": data.tau[rows],
+            "tau_predicted": predicted,
+            "history": est.diagnostics.get("history"),
+        }
+        record_run(out / "recording.rrd", results, series)
+    write_json(out / "results.json", results)
+
+
+def _hydra_output_dir() -> Path:
+    from hydra.core.hydra_config import HydraConfig
+
+    return Path(HydraConfig.get().runtime.output_dir)
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
+def main(cfg: DictConfig) -> None:
+    """Console entry point `sysid-run`."""
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,96 @@
+"""`sysid-run`: its outputs follow DESIGN.md's contract and bad choices fail early and clearly."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra.errors import HydraException, MissingConfigException
+from omegaconf.errors import OmegaConfBaseException
+
+from harness.run import run
+from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _check_schema(results: dict) -> None:
+    assert isinstance(results["system"], str)
+    ex = results["excitation"]
+    for key, kind in (("cond_XtX", float), ("cond_W_colnorm", float), ("harmonics", int), ("period_s", float)):
+        assert isinstance(ex[key], kind), key
+    assert isinstance(ex["limits_ok"], bool)
+    assert results["base_parameters"], "no base parameters"
+    for p in results["base_parameters"]:
+        assert set(p) >= {"name", "true", "estimate", "std", "rel_error"}
+        assert isinstance(p["name"], str) and isinstance(p["estimate"], float) and isinstance(p["std"], float)
+    rms = results["validation"]["torque_rms"]
+    assert rms and all(isinstance(v, float) for v in rms.values())
+    assert results["timing_s"] and all(isinstance(v, float) for v in results["timing_s"].values())
+    assert isinstance(results["seed"], int)
+
+
+def test_console_script_writes_the_contracted_outputs(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "harness.run", "system=pendulum", "seed=3", f"hydra.run.dir={out}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    results = json.loads((out / "results.json").read_text())
+    _check_schema(results)
+    assert results["system"] == "pendulum" and results["seed"] == 3
+    assert "base parameter" in proc.stdout  # the terminal summary
+    header = (out / "data.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["time", "q_swing"] and "tau_swing" in header
+    rows = rrd_rows(out / "recording.rrd")
+    n = len((out / "data.csv").read_text().splitlines()) - 1
+    assert 0.8 * n < rows["/joints/swing/tau/measured"] <= n  # filter edges trimmed
+    assert rows["/joints/swing/tau/predicted"] == rows["/joints/swing/tau/measured"]
+    assert rows["/parameters/table"] == 1
+    assert rrd_has_blueprint(out / "recording.rrd")
+
+
+def test_unknown_system_lists_the_valid_ones() -> None:
+    with pytest.raises(MissingConfigException, match=r"(?s)system.*two_link.*wheel_pendulum"):
+        compose_config(["system=three_link"])
+
+
+def test_unknown_estimator_group_lists_the_valid_ones() -> None:
+    with pytest.raises(MissingConfigException, match=r"(?s)estimator.*ols.*wls"):
+        compose_config(["estimator=kalman_magic"])
+
+
+def test_unknown_estimator_name_fails_before_any_work(tmp_path: Path) -> None:
+    cfg = compose_config(["record=none", "estimator.name=magic"])
+    with pytest.raises(ValueError, match=r"unknown estimator 'magic'; valid choices: .*ols.*wls"):
+        run(cfg, output_dir=tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+def test_malformed_override_is_refused() -> None:
+    with pytest.raises((HydraException, OmegaConfBaseException), match="no viable alternative"):
+        compose_config(["system.limits.velocity=[1,"])
+
+
+def test_failed_run_leaves_no_results(tmp_path: Path) -> None:
+    # an acceleration bound too small for any motion: the excitation cannot be designed
+    cfg = compose_config(["record=none", "system=pendulum", "system.limits.acceleration=1e-6"])
+    with pytest.raises(ValueError, match="binding constraint"):
+        run(cfg, output_dir=tmp_path)
+    assert not (tmp_path / "results.json").exists()
+
+
+def test_results_json_is_replaced_whole(tmp_path: Path) -> None:
+    (tmp_path / "results.json").write_text('{"old": true}')
+    run(compose_config(["record=none", "system=pendulum"]), output_dir=tmp_path)
+    results = json.loads((tmp_path / "results.json").read_text())
+    _check_schema(results)
+    assert not list(tmp_path.glob(".*.tmp"))

@@ -1,0 +1,93 @@
+"""The MJCF is the one source of truth: Pinocchio's regressor times the MJCF's parameters is MuJoCo's dynamics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from envs.errors import ModelError
+from envs.plant import MJCF_DIR, SYSTEMS, load_plant
+from identify.model import ParameterModel
+
+BUILT_IN = [s for s in SYSTEMS if (MJCF_DIR / f"{s}.xml").is_file()]
+
+
+def _random_states(plant, rng, n):  # type: ignore[no-untyped-def]
+    lo = np.where(np.isfinite(plant.q_range[:, 0]), plant.q_range[:, 0], -np.pi)
+    hi = np.where(np.isfinite(plant.q_range[:, 1]), plant.q_range[:, 1], np.pi)
+    return (
+        rng.uniform(lo, hi, size=(n, plant.nv)),
+        rng.normal(0, 3, size=(n, plant.nv)),
+        rng.normal(0, 10, size=(n, plant.nv)),
+    )
+
+
+def _mj_inverse(plant, q, dq, ddq):  # type: ignore[no-untyped-def]
+    m = plant.mj_model
+    d = mujoco.MjData(m)
+    out = np.empty_like(q)
+    for k in range(len(q)):
+        d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
+        mujoco.mj_inverse(m, d)
+        assert d.nefc == 0, "a constraint is active: the comparison would include its force"
+        out[k] = d.qfrc_inverse
+    return out
+
+
+@pytest.mark.parametrize("system", BUILT_IN)
+def test_regressor_times_truth_is_mujoco_inverse_dynamics(system: str) -> None:
+    plant = load_plant(system)
+    model = ParameterModel(plant, ("armature", "viscous_friction"))
+    q, dq, ddq = _random_states(plant, np.random.default_rng(0), 100)
+    q = np.clip(q, plant.q_range[:, 0] * 0.99, plant.q_range[:, 1] * 0.99)  # keep joint limits inactive
+    predicted = np.einsum("knp,p->kn", model.regressor(q, dq, ddq), model.truth())
+    np.testing.assert_allclose(predicted, _mj_inverse(plant, q, dq, ddq), rtol=0, atol=1e-8)
+
+
+def test_regressor_includes_damping_and_armature_when_present(tmp_path: Path) -> None:
+    xml = (MJCF_DIR / "two_link.xml").read_text().replace('armature="0.00218588"', 'armature="0.003" damping="0.05"')
+    path = tmp_path / "damped.xml"
+    path.write_text(xml)
+    plant = load_plant(path)
+    np.testing.assert_allclose(plant.damping, [0.05, 0.05])
+    model = ParameterModel(plant, ("armature", "viscous_friction"))
+    q, dq, ddq = _random_states(plant, np.random.default_rng(1), 50)
+    predicted = np.einsum("knp,p->kn", model.regressor(q, dq, ddq), model.truth())
+    np.testing.assert_allclose(predicted, _mj_inverse(plant, q, dq, ddq), rtol=0, atol=1e-8)
+    rigid_only = np.einsum("knp,p->kn", ParameterModel(plant).regressor(q, dq, ddq), plant.theta)
+    assert np.max(np.abs(rigid_only - _mj_inverse(plant, q, dq, ddq))) > 1e-3  # the effects matter here
+
+
+def test_truth_matches_mujoco_body_inertials() -> None:
+    plant = load_plant("two_link")
+    m = plant.mj_model
+    for j in range(plant.nv):
+        body = m.jnt_bodyid[j]
+        theta = plant.theta[10 * j : 10 * j + 10]
+        assert theta[0] == pytest.approx(m.body_mass[body])
+        np.testing.assert_allclose(theta[1:4], m.body_mass[body] * m.body_ipos[body], atol=1e-12)
+
+
+def test_unknown_system_lists_valid_choices() -> None:
+    with pytest.raises(ValueError, match=r"valid choices: .*two_link"):
+        load_plant("three_link")
+
+
+@pytest.mark.parametrize(
+    ("joint", "message"),
+    [
+        ('<joint name="j" type="ball"/>', "only hinge and slide"),
+        ('<joint name="j" type="hinge" axis="0 1 0" pos="0 0 -0.1"/>', "body's origin"),
+    ],
+)
+def test_unsupported_models_are_refused(tmp_path: Path, joint: str, message: str) -> None:
+    path = tmp_path / "bad.xml"
+    path.write_text(
+        f'<mujoco><worldbody><body name="b">{joint}<inertial pos="0 0 -0.1" mass="1" diaginertia="0.01 0.01 0.01"/>'
+        "</body></worldbody></mujoco>"
+    )
+    with pytest.raises(ModelError, match=message):
+        load_plant(path)
