@@ -115,7 +115,7 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
     if motion < min_motion_rad:
         raise InfeasibleExcitationError(
             f"the limits allow at most {motion:.3g} rad of motion (< {min_motion_rad} rad): binding constraint "
-            f"{binding} ({limits.binding({binding: 1.0}, dev, dq1)}); relax it or lower the base frequency"
+            f"{limits.binding({binding: 1.0}, dev, dq1)}; relax it or lower the base frequency"
         )
     return shape.scaled(s_hi)
 

@@ -64,7 +64,8 @@ class Limits:
         key = max(ratios, key=lambda k: ratios[k])
         units = {"q": "rad", "dq": "rad/s", "ddq": "rad/s^2", "tau": "N m"}
         bound = {"q": self.q_max, "dq": self.dq_max, "ddq": self.ddq_max, "tau": self.tau_max}[key]
-        return f"{key} <= {units[key]} bound {np.array2string(bound, precision=4)} (joints {list(self.joint_names)})"
+        per_joint = ", ".join(f"{j} {b:.4g}" for j, b in zip(self.joint_names, bound, strict=True))
+        return f"{key} (bound {per_joint} {units[key]})"
 
     def to_dict(self) -> dict[str, list[float]]:
         def clean(a: np.ndarray) -> list[float]:

@@ -14,6 +14,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from envs.plant import Plant
+from harness.robot3d import log_robot
+
 __all__ = ["log_joint_series", "run_blueprint", "save_recording"]
 
 
@@ -59,13 +62,22 @@ def run_blueprint(joint_names: tuple[str, ...], *, with_history: bool) -> rrb.Bl
     ]
     if with_history:
         side.append(rrb.TimeSeriesView(origin="/estimator/history", name="estimate over time"))
-    return rrb.Blueprint(rrb.Horizontal(rrb.Horizontal(*joint_views), rrb.Vertical(*side), column_shares=[3, 1]))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="/robot", name="robot replay"),
+            rrb.Horizontal(*joint_views),
+            rrb.Vertical(*side),
+            column_shares=[2, 3, 2],
+        ),
+        collapse_panels=True,
+    )
 
 
-def record_run(path: Path, results: dict[str, Any], series: dict[str, Any]) -> None:
+def record_run(path: Path, plant: Plant, results: dict[str, Any], series: dict[str, Any]) -> None:
     """Write the run recording.
 
     Args:
+        plant: the simulated robot, replayed in 3D along the measured motion.
         results: the results dictionary (parameters, excitation summary).
         series: `time` (N,), `joint_names`, and per-joint arrays (N, nv): `q`, `dq`, `tau_measured`,
             `tau_predicted`; optional `history` {"time": (T,), "beta": (T, r)}.
@@ -76,6 +88,7 @@ def record_run(path: Path, results: dict[str, Any], series: dict[str, Any]) -> N
     def fill(rec: rr.RecordingStream) -> None:
         rec.send_blueprint(run_blueprint(names, with_history=history is not None))
         t = series["time"]
+        log_robot(rec, plant, t, series["q"])
         for j, name in enumerate(names):
             log_joint_series(rec, f"joints/{name}/tau/measured", t, series["tau_measured"][:, j])
             log_joint_series(rec, f"joints/{name}/tau/predicted", t, series["tau_predicted"][:, j])

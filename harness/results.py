@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import sys
+import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +14,7 @@ import numpy as np
 
 from envs.dataset import atomic_write
 
-__all__ = ["summary_table", "to_jsonable", "write_json"]
+__all__ = ["run_job", "summary_table", "to_jsonable", "write_json"]
 
 
 def to_jsonable(value: Any) -> Any:
@@ -60,3 +63,30 @@ def summary_table(results: dict[str, Any]) -> str:
         lines.append(f"validation {joint}: torque RMS {rms:.4g} N m (sensor noise std {val['noise_std'][joint]:.4g})")
     lines.append("timing: " + ", ".join(f"{k} {v:.2f} s" for k, v in results["timing_s"].items()))
     return "\n".join(lines)
+
+
+def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
+    """Run one Hydra job.
+
+    Inside a sweep (`-m`) a failure is written to `failure.json` in the job's folder and the sweep goes on with
+    the other jobs. A single run that fails on bad input prints one clear line and exits with status 2;
+    any other exception propagates with its traceback.
+    """
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    hydra_cfg = HydraConfig.get()
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        try:
+            return work(cfg)
+        except ValueError as err:  # bad input or an impossible request (SysIdError subclasses included)
+            print(f"{hydra_cfg.job.name}: error: {err}", file=sys.stderr)
+            raise SystemExit(2) from err
+    try:
+        return work(cfg)
+    except Exception as err:
+        out = Path(hydra_cfg.runtime.output_dir)
+        message = f"{type(err).__name__}: {err}"
+        write_json(out / "failure.json", {"error": message, "traceback": traceback.format_exc()})
+        print(f"job {hydra_cfg.job.num} failed: {message}", file=sys.stderr)
+        return None

@@ -23,14 +23,14 @@ from excitation.designs import grid
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits, limits_for
 from excitation.registry import EXCITATIONS, design_excitation
-from harness.results import summary_table, write_json
+from harness.results import run_job, summary_table, write_json
 from identify.base import BaseParameters, base_parameters
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
 from identify.derivatives import DERIVATIVES, derive_states
 from identify.derived import DERIVED
 from identify.estimators import ESTIMATORS, estimate
 from identify.model import ParameterModel
-from identify.problem import Estimate, build_problem
+from identify.problem import Estimate, Problem, build_problem
 
 __all__ = ["CONF_DIR", "conditioning", "main", "run"]
 
@@ -206,7 +206,7 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
         "timing_s": timing,
         "config": OmegaConf.to_container(cfg, resolve=True),
     }
-    _write_outputs(out, cfg, results, data, problem, est, model, base)
+    _write_outputs(out, cfg, results, data, problem, est)
     print(summary_table(results))
     print(f"outputs in {out}")
     return results
@@ -234,16 +234,7 @@ def _derived(plant: Plant, base: BaseParameters, est: Estimate) -> list[dict[str
     return out
 
 
-def _write_outputs(
-    out: Path,
-    cfg: DictConfig,
-    results: dict,
-    data: Dataset,
-    problem: Any,
-    est: Estimate,
-    model: ParameterModel,
-    base: BaseParameters,
-) -> None:
+def _write_outputs(out: Path, cfg: DictConfig, results: dict, data: Dataset, problem: Problem, est: Estimate) -> None:
     """data.csv and recording.rrd first, results.json last: a results file means a finished run."""
     out.mkdir(parents=True, exist_ok=True)
     write_csv(data, out / "data.csv")
@@ -261,7 +252,7 @@ def _write_outputs(
             "tau_predicted": predicted,
             "history": est.diagnostics.get("history"),
         }
-        record_run(out / "recording.rrd", results, series)
+        record_run(out / "recording.rrd", problem.model.plant, results, series)
     write_json(out / "results.json", results)
 
 
@@ -274,7 +265,7 @@ def _hydra_output_dir() -> Path:
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
 def main(cfg: DictConfig) -> None:
     """Console entry point `sysid-run`."""
-    run(cfg)
+    run_job(run, cfg)
 
 
 if __name__ == "__main__":

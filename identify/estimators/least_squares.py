@@ -70,6 +70,8 @@ def ols(problem: Problem) -> Estimate:
 
 def wls(problem: Problem, *, iterations: int = 3) -> Estimate:
     """Weighted least squares with per-joint weights 1/sigma_j^2 re-estimated from the residuals."""
+    if iterations < 1:
+        raise ValueError(f"wls needs iterations >= 1, got {iterations}")
     W, y = problem.W, problem.y
     actuated = np.asarray(problem.data.actuated, dtype=bool)
     sigma = _floor(_joint_sigma(W, y, _solve(W, y, np.ones(W.shape[1]))), actuated)

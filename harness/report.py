@@ -1,0 +1,157 @@
+"""`sysid-report <sweep dir>`: one table (markdown and CSV) and one recording comparing the runs of a sweep.
+
+Each job folder of a Hydra multirun holds `results.json` (sysid-run), `diagnosis.json` (sysid-diagnose) or
+`failure.json` (a job that raised: the sweep went on without it). Written into the sweep folder:
+`report.md`, `report.csv` and `report.rrd`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from envs.dataset import atomic_write
+
+__all__ = ["collect", "main", "report_rows", "write_report"]
+
+
+def _overrides(job: Path) -> str:
+    path = job / ".hydra" / "overrides.yaml"
+    if not path.is_file():
+        return ""
+    lines = [ln.strip()[2:] for ln in path.read_text().splitlines() if ln.strip().startswith("- ")]
+    return " ".join(lines)
+
+
+def collect(sweep: Path) -> list[dict[str, Any]]:
+    """One record per job folder (any folder below `sweep` holding a `.hydra` folder or an output file)."""
+    sweep = Path(sweep)
+    if not sweep.is_dir():
+        raise FileNotFoundError(f"sweep folder not found: {sweep}")
+    jobs = sorted({p.parent for p in sweep.rglob(".hydra")} | {p.parent for p in sweep.rglob("results.json")})
+    jobs += sorted({p.parent for p in sweep.rglob("diagnosis.json")} - set(jobs))
+    out = []
+    for job in sorted(set(jobs)):
+        record: dict[str, Any] = {"job": str(job.relative_to(sweep)) or ".", "overrides": _overrides(job)}
+        for name, kind in (("results.json", "run"), ("diagnosis.json", "diagnose")):
+            if (job / name).is_file():
+                record.update(kind=kind, status="ok", payload=json.loads((job / name).read_text()))
+                break
+        else:
+            failure = job / "failure.json"
+            error = json.loads(failure.read_text())["error"] if failure.is_file() else "no output (still running?)"
+            record.update(kind="?", status="failed", error=error)
+        out.append(record)
+    if not out:
+        raise FileNotFoundError(f"{sweep}: no job folders (with .hydra/, results.json or diagnosis.json) below it")
+    return out
+
+
+def report_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Flat rows: the job, its overrides and status, and the headline numbers of its output."""
+    rows = []
+    for r in records:
+        row: dict[str, Any] = {"job": r["job"], "overrides": r["overrides"], "status": r["status"]}
+        p: dict[str, Any] = r.get("payload") or {}
+        if r["status"] != "ok":
+            row["error"] = r["error"]
+        elif r["kind"] == "run":
+            row.update(
+                system=p["system"],
+                estimator=p.get("estimator"),
+                excitation=p["excitation"]["name"],
+                harmonics=p["excitation"]["harmonics"],
+                cond_XtX=p["excitation"]["cond_XtX"],
+                cond_W_colnorm=p["excitation"]["cond_W_colnorm"],
+                limits_ok=p["excitation"]["limits_ok"],
+                max_abs_z=max(abs(b["z"]) for b in p["base_parameters"] if b.get("z") is not None),
+                **{f"val_rms_{j}": v for j, v in p["validation"]["torque_rms"].items()},
+                time_s=sum(p["timing_s"].values()),
+            )
+        else:
+            findings = p.get("findings", [])
+            row.update(
+                system=p["system"],
+                verdict=p["verdict"],
+                first_finding=findings[0]["effect"] if findings else "",
+                **{f"baseline_rms_{j}": v for j, v in p["baseline"]["torque_rms"].items()},
+                **{f"extended_rms_{j}": v for j, v in p.get("extended", {}).get("torque_rms", {}).items()},
+            )
+        rows.append(row)
+    return rows
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return "" if v is None else str(v)
+
+
+def write_report(sweep: Path, rows: list[dict[str, Any]]) -> None:
+    """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all."""
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    md = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    md += ["| " + " | ".join(_fmt(row.get(c)) for c in columns) + " |" for row in rows]
+    n_failed = sum(r["status"] != "ok" for r in rows)
+    md += ["", f"{len(rows)} jobs, {len(rows) - n_failed} ok, {n_failed} failed"]
+    atomic_write(sweep / "report.md", lambda f: f.write("\n".join(md) + "\n"))
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write(sweep / "report.csv", lambda f: f.write(buf.getvalue()))
+    _record(sweep / "report.rrd", rows)
+
+
+def _record(path: Path, rows: list[dict[str, Any]]) -> None:
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    from harness.record import save_recording
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    numeric = [c for c in dict.fromkeys(k for r in ok for k in r) if all(isinstance(r.get(c), float) for r in ok)]
+
+    def fill(rec: rr.RecordingStream) -> None:
+        rec.send_blueprint(
+            rrb.Blueprint(
+                rrb.Grid(
+                    *[rrb.BarChartView(origin=f"/runs/{c}", name=c) for c in numeric],
+                    rrb.TextDocumentView(origin="/runs/table", name="jobs"),
+                )
+            )
+        )
+        for c in numeric:
+            rec.log(f"runs/{c}", rr.BarChart(np.array([r[c] for r in ok], dtype=float)), static=True)
+        legend = "\n".join(f"{i}. `{r['job']}` {r['overrides']}" for i, r in enumerate(ok))
+        failed = "\n".join(f"- `{r['job']}` {r['overrides']}: {r['error']}" for r in rows if r["status"] != "ok")
+        text = f"Bars are the successful jobs in this order:\n\n{legend}\n\nFailed:\n\n{failed or '(none)'}"
+        rec.log("runs/table", rr.TextDocument(text, media_type="text/markdown"), static=True)
+
+    save_recording(path, "sysid-report", fill)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point `sysid-report <sweep dir>`."""
+    parser = argparse.ArgumentParser(prog="sysid-report", description=__doc__.splitlines()[0])
+    parser.add_argument("sweep", type=Path, help="a Hydra multirun folder, e.g. multirun/2026-11-23_12-00-00")
+    args = parser.parse_args(argv)
+    try:
+        rows = report_rows(collect(args.sweep))
+    except FileNotFoundError as err:
+        print(f"sysid-report: {err}", file=sys.stderr)
+        return 2
+    write_report(args.sweep, rows)
+    print((args.sweep / "report.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""Sweeps: parallel jobs through the joblib launcher, failures reported, and one table that matches the runs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from harness.report import collect, main, report_rows
+from tests.conftest import rrd_has_blueprint, rrd_rows
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_two_job_sweep_and_its_report(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    cmd = [
+        sys.executable,
+        "-m",
+        "harness.run",
+        "-m",
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+        f"hydra.sweep.dir={sweep}",
+        "system=pendulum",
+        "record=none",
+        "seed=0,1",
+    ]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert main([str(sweep)]) == 0
+    with (sweep / "report.csv").open() as f:
+        table = {row["job"]: row for row in csv.DictReader(f)}
+    assert len(table) == 2
+    for job, row in table.items():
+        results = json.loads((sweep / job / "results.json").read_text())
+        assert row["status"] == "ok"
+        assert float(row["cond_XtX"]) == results["excitation"]["cond_XtX"]
+        assert float(row["val_rms_swing"]) == results["validation"]["torque_rms"]["swing"]
+        assert f"seed={results['seed']}" in row["overrides"]
+    assert "2 jobs, 2 ok, 0 failed" in (sweep / "report.md").read_text()
+    assert rrd_rows(sweep / "report.rrd")["/runs/cond_XtX"] == 1
+    assert rrd_has_blueprint(sweep / "report.rrd")
+
+
+def test_a_failed_job_is_reported_and_the_others_finish(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    cmd = [
+        sys.executable,
+        "-m",
+        "harness.run",
+        "-m",
+        f"hydra.sweep.dir={sweep}",
+        "system=pendulum",
+        "record=none",
+        "system.limits.acceleration=1e-6,60",
+    ]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = {float(r["overrides"].split("acceleration=")[1]): r for r in report_rows(collect(sweep))}
+    assert rows[60.0]["status"] == "ok"
+    assert rows[1e-6]["status"] == "failed"
+    assert "binding constraint ddq" in rows[1e-6]["error"]
+
+
+def test_report_of_a_missing_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    assert main([str(tmp_path / "nope")]) == 2
+    assert "sweep folder not found" in capsys.readouterr().err
