@@ -1,0 +1,816 @@
+"""Measured joint data from CSV files: column mapping, input checks and repairs, and the train/validation split.
+
+`read_measured` reads one CSV with a header row (the measured-data format of DESIGN.md, or any other layout
+through a column mapping) into a `Dataset` of a plant's joints. Every message names the file, the column (the
+file's name, then ours) and the row: `row k` counts data rows from 0, `line` is the line of the file (the
+header is line 1). Nothing questionable reaches a fit silently:
+
+- refused with `DataError`: missing or unknown columns, cells that are not numbers, NaN or inf, time that
+  goes backwards or repeats, a gap in the sampling too long to interpolate, angles that look like degrees (or
+  a velocity column that disagrees with the angle's own rate), a jump that no velocity allows and that is
+  neither a whole turn nor an isolated glitch, too many glitches, and too few rows;
+- repaired and reported in `dataset.meta["repairs"]` (a tuple of `Repair`): irregular start-up rows (dropped),
+  encoder wrap-arounds (unwrapped by the whole turn), isolated glitches of at most `_GLITCH_MAX_RUN` samples
+  (re-interpolated from the good samples around them), and irregular or jittery sampling (interpolated onto a
+  uniform grid at the median step, which the derivative filters need). `repair=False` and `resample=False`
+  turn the last three into refusals.
+
+`check_excitation` tells whether a (base) regressor built from the data excites every parameter asked for;
+`split_train_validation` holds data out by file, or by a contiguous block of time for a single file, never by
+random samples.
+"""
+
+from __future__ import annotations
+
+import csv
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from envs.dataset import Dataset
+from envs.errors import DataError
+from envs.plant import Plant
+
+__all__ = [
+    "ExcitationCheck",
+    "Repair",
+    "Split",
+    "check_excitation",
+    "read_many",
+    "read_measured",
+    "split_train_validation",
+]
+
+_REGULAR_TOL = 0.01  # a step within 1 % of the median step is regular (identify.derivatives asks for this)
+_STARTUP_TOL = 0.25  # leading steps off the median by more than 25 % are the logger's start-up
+_STARTUP_MAX_FRACTION = 0.05  # ... as long as they are a few rows; otherwise the sampling is irregular
+_MAX_GAP_STEPS = 10.0  # a gap of more than 10 median steps is not interpolated across
+_GLITCH_MAX_RUN = 5  # a glitch is at most 5 consecutive samples off track
+_GLITCH_MAX_FRACTION = 0.01  # more glitch samples than 1 % of the rows: the sensor is not trusted
+_MIN_JUMP = 0.02  # [rad] (or [m]) a step smaller than this is never called a jump
+_DEGREE = np.pi / 180.0
+_FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
+
+
+@dataclass(frozen=True)
+class Repair:
+    """One repair made while reading a file, recorded in `dataset.meta["repairs"]`.
+
+    Attributes:
+        kind: `startup_trim`, `wrap`, `glitch`, `edge_glitch` or `resample`.
+        column: the file's column (and ours) that was repaired, or `time`.
+        rows: data rows of the file (0-based) where it applies: the first rows of each event.
+        message: what was found and what was done, in words.
+    """
+
+    kind: str
+    column: str
+    rows: tuple[int, ...]
+    message: str
+
+
+@dataclass(frozen=True)
+class ExcitationCheck:
+    """How well the data excite the parameters of a regressor.
+
+    Attributes:
+        n_equations: rows of the stacked regressor (samples x joints).
+        n_parameters: its columns.
+        rank: numerical rank of the column-normalised regressor.
+        cond: 2-norm condition number of the column-normalised regressor [-] (inf when rank deficient).
+        weakest: names of the parameters in the poorly excited directions (those above `max_cond`, else the
+            least excited one), largest share first.
+    """
+
+    n_equations: int
+    n_parameters: int
+    rank: int
+    cond: float
+    weakest: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Split:
+    """Training and validation data that share no sample.
+
+    Attributes:
+        train: datasets the fit may use.
+        validation: datasets it never sees.
+        by: `file` (whole files held out) or `time_block` (the last part of a single record held out).
+    """
+
+    train: tuple[Dataset, ...]
+    validation: tuple[Dataset, ...]
+    by: str
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready summary: `by`, and per part the source, first and last time [s] and sample count."""
+
+        def part(datasets: tuple[Dataset, ...]) -> list[dict[str, Any]]:
+            return [
+                {"source": d.source, "t_start": float(d.time[0]), "t_end": float(d.time[-1]), "n_samples": d.n_samples}
+                for d in datasets
+            ]
+
+        return {"by": self.by, "train": part(self.train), "validation": part(self.validation)}
+
+
+@dataclass(frozen=True)
+class _Column:
+    name: str  # the file's column
+    index: int
+    scale: float = 1.0
+    offset: float = 0.0
+
+
+def read_measured(
+    path: str | Path,
+    plant: Plant,
+    *,
+    columns: Mapping[str, Any] | None = None,
+    repair: bool = True,
+    resample: bool = True,
+    max_speed: float | None = None,
+    min_samples: int = 50,
+) -> Dataset:
+    """Read one CSV file of joint data into a dataset of `plant`'s joints, checking and repairing it.
+
+    Args:
+        path: CSV file with a header row.
+        plant: the system the data belong to; its joint names and actuators decide the columns needed:
+            `time`, `q_<joint>` for every joint, `tau_<joint>` for every actuated joint, and optionally
+            `dq_<joint>` (all joints) and `tau_cmd_<joint>` (all actuated joints).
+        columns: None for the measured-data format (the file uses those names; `ddq_<joint>` is accepted and
+            ignored, other unrelated columns are ignored and listed in `meta["ignored_columns"]`). Otherwise a
+            map from our names to the file's column names, each value a name or `{column, scale, offset}`
+            (ours = scale * file + offset, e.g. scale 0.0174533 for degrees, -1 for a flipped sign); our names
+            left out are looked up under their own name.
+        repair: unwrap encoder wrap-arounds and interpolate isolated glitches (reported); False refuses them.
+        resample: interpolate irregular sampling onto a uniform grid at the median step (reported); False
+            refuses it.
+        max_speed: fastest physically possible joint speed [rad/s]; None estimates a bound from the data
+            (3 x the 99.9th percentile of |dq|, or of the angle's own rate when dq is absent).
+        min_samples: fewest rows accepted, before and after repairs.
+
+    Returns:
+        Dataset with `time` (N,) [s] on a uniform grid; `q` [rad], `tau` [N m] and the optional `dq` [rad/s]
+        and `tau_cmd` [N m], each (N, nv); zero torque on unactuated joints; `source` the path; `meta` with `repairs`
+        (tuple of `Repair`), `columns` (ours -> the file's column, with any scale and offset),
+        `ignored_columns`, `rows_read`, `sample_rate_hz`.
+
+    Raises:
+        DataError: a check failed; the message names the file, column and row.
+    """
+    path = Path(path)
+    src = str(path)
+    header, table = _read_table(path)
+    sources, ignored = _resolve_columns(plant, header, columns, src)
+    values = {name: c.scale * table[:, c.index] + c.offset for name, c in sources.items()}
+    labels = {name: f"column '{c.name}'" + (f" ({name})" if c.name != name else "") for name, c in sources.items()}
+    _check_finite(values, labels, src)
+    t = values["time"]
+    _check_time(t, labels["time"], src)
+    _check_length(len(t), min_samples, src, "rows")
+
+    names = plant.joint_names
+    arrays: dict[str, np.ndarray | None] = {"q": np.column_stack([values[f"q_{n}"] for n in names])}
+    arrays["dq"] = _optional_block(values, [f"dq_{n}" for n in names], range(plant.nv), plant.nv, src)
+    act = [j for j in range(plant.nv) if plant.actuated[j]]
+    tau = np.zeros((len(t), plant.nv))
+    for j in act:
+        tau[:, j] = values[f"tau_{names[j]}"]
+    arrays["tau"] = tau
+    arrays["tau_cmd"] = _optional_block(values, [f"tau_cmd_{names[j]}" for j in act], act, plant.nv, src)
+    _check_angle_units(plant, t, arrays, labels, src)
+
+    rows = np.arange(len(t))
+    repairs: list[Repair] = []
+    start = _startup_rows(t)
+    if start:
+        steps = np.diff(t[: start + 1]) * 1e3
+        repairs.append(
+            Repair(
+                "startup_trim",
+                "time",
+                tuple(range(start)),
+                f"dropped the first {start} rows (t < {t[start]:.6g} s): start-up steps of {steps.min():.3g}-"
+                f"{steps.max():.3g} ms against the median {np.median(np.diff(t)) * 1e3:.4g} ms",
+            )
+        )
+        t, rows, arrays = t[start:], rows[start:], _cut(arrays, start, len(t))
+
+    head, tail = 0, 0
+    q = np.array(arrays["q"])
+    for j, n in enumerate(names):
+        dq = arrays["dq"]
+        fixed, found, h, tl = _repair_joint(
+            t,
+            q[:, j],
+            None if dq is None else dq[:, j],
+            max_speed=max_speed,
+            label=labels[f"q_{n}"],
+            rows=rows,
+            src=src,
+            repair=repair,
+        )
+        q[:, j] = fixed
+        repairs += found
+        head, tail = max(head, h), max(tail, tl)
+    arrays["q"] = q
+    if head or tail:
+        t, rows, arrays = t[head : len(t) - tail], rows[head : len(t) - tail], _cut(arrays, head, len(t) - tail)
+
+    t, arrays, resampled = _regularise(t, arrays, rows, resample=resample, label=labels["time"], src=src)
+    if resampled is not None:
+        repairs.append(resampled)
+    _check_length(len(t), min_samples, src, "rows left after the repairs")
+    meta = {
+        "repairs": tuple(repairs),
+        "columns": {name: _describe(c) for name, c in sources.items()},
+        "ignored_columns": tuple(ignored),
+        "rows_read": len(table),
+        "sample_rate_hz": float(1.0 / np.median(np.diff(t))),
+    }
+    q_out, tau_out = arrays["q"], arrays["tau"]
+    assert q_out is not None and tau_out is not None
+    return Dataset(
+        time=t,
+        q=q_out,
+        tau=tau_out,
+        joint_names=names,
+        actuated=np.asarray(plant.actuated, bool),
+        dq=arrays["dq"],
+        tau_cmd=arrays["tau_cmd"],
+        source=src,
+        meta=meta,
+    )
+
+
+def read_many(
+    paths: str | Path | Sequence[str | Path],
+    plant: Plant,
+    *,
+    columns: Mapping[str, Any] | None = None,
+    repair: bool = True,
+    resample: bool = True,
+    max_speed: float | None = None,
+    min_samples: int = 50,
+) -> list[Dataset]:
+    """Read one file or several with `read_measured`, in the order given.
+
+    Every file is checked before anything is returned, and the problems of all files are reported together.
+
+    Raises:
+        ValueError: no path given.
+        DataError: a file listed twice, or any file failing a check (one line per file).
+    """
+    items = [paths] if isinstance(paths, str | Path) else list(paths)
+    if not items:
+        raise ValueError("no data file given (data.path is empty)")
+    seen = [Path(p).resolve() for p in items]
+    twice = sorted({str(p) for p in seen if seen.count(p) > 1})
+    if twice:
+        raise DataError(f"file(s) listed more than once (a file cannot be both fitted and validated on): {twice}")
+    datasets, errors = [], []
+    for p in items:
+        try:
+            datasets.append(
+                read_measured(
+                    p,
+                    plant,
+                    columns=columns,
+                    repair=repair,
+                    resample=resample,
+                    max_speed=max_speed,
+                    min_samples=min_samples,
+                )
+            )
+        except DataError as err:
+            errors.append(str(err))
+    if errors:
+        raise DataError("\n".join(errors))
+    return datasets
+
+
+def split_train_validation(
+    datasets: Sequence[Dataset],
+    *,
+    validation_fraction: float = 0.3,
+    validation: Sequence[str] | None = None,
+    min_samples: int = 50,
+) -> Split:
+    """Hold data out for validation: whole files when there are two or more, else the end of the record.
+
+    Args:
+        datasets: one dataset per file, in order.
+        validation: files to hold out, by name, stem or path (two or more files only); None holds out the last
+            round(validation_fraction x files) of them, at least one, leaving at least one to train on.
+        validation_fraction: share held out when `validation` is None: of the files, or, for a single file,
+            of its samples, taken as one contiguous block at its end (the fit's samples all come before).
+        min_samples: fewest samples in each block of a single file.
+
+    Raises:
+        ValueError: a fraction outside (0, 1), no dataset, or `validation` naming a file not given.
+        DataError: a single record too short to split.
+    """
+    if not datasets:
+        raise ValueError("no dataset to split")
+    if not 0.0 < validation_fraction < 1.0:
+        raise ValueError(f"validation_fraction must lie in (0, 1), got {validation_fraction}")
+    if len(datasets) == 1:
+        if validation:
+            raise ValueError("with a single file the validation data are its last block: set validation_fraction")
+        data = datasets[0]
+        cut = int(round(data.n_samples * (1.0 - validation_fraction)))
+        short = min(cut, data.n_samples - cut)
+        if short < min_samples:
+            raise DataError(
+                f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
+                f"block of at least {min_samples} samples each"
+            )
+        return Split((data.slice(0, cut),), (data.slice(cut, data.n_samples),), "time_block")
+    if validation is None:
+        n_val = min(len(datasets) - 1, max(1, int(round(validation_fraction * len(datasets)))))
+        held = set(range(len(datasets) - n_val, len(datasets)))
+    else:
+        held = set()
+        for name in validation:
+            hits = [
+                i for i, d in enumerate(datasets) if str(name) in (d.source, Path(d.source).name, Path(d.source).stem)
+            ]
+            if not hits:
+                given = ", ".join(Path(d.source).name for d in datasets)
+                raise ValueError(f"validation file {name!r} is not among the files read: {given}")
+            held.update(hits)
+        if len(held) == len(datasets):
+            raise ValueError("every file is held out for validation: none is left to fit on")
+    train = tuple(d for i, d in enumerate(datasets) if i not in held)
+    return Split(train, tuple(d for i, d in enumerate(datasets) if i in held), "file")
+
+
+def check_excitation(
+    regressor: np.ndarray,
+    *,
+    names: Sequence[str],
+    source: str = "data",
+    max_cond: float = 1e3,
+    min_equations_per_parameter: int = 10,
+) -> ExcitationCheck:
+    """Refuse data that are too short for, or do not excite, the parameters of a regressor.
+
+    The regressor is column-normalised (so that units do not matter) before its condition number is taken;
+    the parameters named in a refusal are those with the largest share of the least excited direction(s).
+
+    Args:
+        regressor: (N, nv, p) or (M, p) regressor of the parameters to identify (normally the base regressor:
+            `BaseParameters.columns(ParameterModel.regressor(q, dq, ddq))`), on the rows the fit will use.
+        names: (p,) parameter names, for the messages.
+        source: what the data are (a file name), for the messages.
+        max_cond: largest acceptable column-normalised condition number.
+        min_equations_per_parameter: fewest equations (rows) per parameter.
+
+    Raises:
+        DataError: too few equations, a parameter whose column is zero, or a condition number above max_cond.
+    """
+    W = np.asarray(regressor, dtype=float)
+    W = W.reshape(-1, W.shape[-1])
+    m, p = W.shape
+    if len(names) != p:
+        raise ValueError(f"{len(names)} names for a regressor of {p} columns")
+    if not np.all(np.isfinite(W)):
+        raise DataError(f"{source}: the regressor holds NaN or inf (check the derivatives of the data)")
+    if m < min_equations_per_parameter * p:
+        raise DataError(
+            f"{source}: too little data: {m} equations for {p} parameters; at least "
+            f"{min_equations_per_parameter} per parameter ({min_equations_per_parameter * p}) are needed"
+        )
+    norms = np.linalg.norm(W, axis=0)
+    dead = [names[int(c)] for c in np.flatnonzero(norms <= 1e-12 * max(norms.max(), 1e-300))]
+    if dead:
+        raise DataError(f"{source}: the data do not excite {', '.join(dead)} at all (their regressor columns are 0)")
+    s, vt = np.linalg.svd(W / norms, full_matrices=False)[1:]
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    rank = int(np.sum(s > s[0] * max(m, p) * np.finfo(float).eps))
+    weak = s < s[0] / max_cond
+    share = np.sum(vt[weak] ** 2, axis=0) if weak.any() else vt[-1] ** 2  # each parameter's part of the weak space
+    order = np.argsort(share)[::-1]
+    weakest = tuple(names[c] for c in order if share[c] >= 0.1 or c == order[0])
+    check = ExcitationCheck(n_equations=m, n_parameters=p, rank=rank, cond=cond, weakest=weakest)
+    if cond > max_cond:
+        last = np.argsort(vt[-1] ** 2)[::-1][:4]
+        combo = " ".join(f"{vt[-1, c]:+.2f} [{names[c]}]" for c in last if vt[-1, c] ** 2 >= 0.01)
+        raise DataError(
+            f"{source}: too little excitation for the parameters asked for: {int(weak.sum())} direction(s) of the "
+            f"column-normalised regressor are poorly excited (condition number {cond:.3g} > {max_cond:.3g}); "
+            f"weakest: {', '.join(weakest)} (weakest direction {combo}). Use data that move these, or drop them "
+            "from the model"
+        )
+    return check
+
+
+def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
+    if not path.is_file():
+        raise DataError(f"{path}: no such file")
+    with path.open(newline="", encoding="utf-8-sig") as f:
+        header = [h.strip() for h in next(csv.reader(f), [])]
+    if not header or header == [""]:
+        raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # an empty body is reported below, not warned about
+            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8-sig", comments=None)
+    except ValueError as err:
+        _locate_bad_cell(path, header)
+        raise DataError(f"{path}: cannot read the rows as numbers: {err}") from err
+    if table.shape[0] == 0:
+        raise DataError(f"{path}: no data rows after the header")
+    if table.shape[1] != len(header):
+        raise DataError(f"{path}: rows have {table.shape[1]} fields but the header names {len(header)} columns")
+    return header, table
+
+
+def _locate_bad_cell(path: Path, header: list[str]) -> None:
+    with path.open(newline="", encoding="utf-8-sig") as f:
+        reader = csv.reader(f)
+        next(reader)
+        for row, cells in enumerate(c for c in reader if c):
+            line = reader.line_num
+            if len(cells) != len(header):
+                raise DataError(
+                    f"{path}: row {row} (line {line}) has {len(cells)} fields; the header has {len(header)}"
+                )
+            for name, cell in zip(header, cells, strict=True):
+                try:
+                    float(cell)
+                except ValueError:
+                    raise DataError(
+                        f"{path}: column '{name}', row {row} (line {line}): {cell!r} is not a number"
+                    ) from None
+
+
+def _targets(plant: Plant) -> dict[str, bool]:
+    """Our column names for `plant`, each with whether it is required."""
+    out = {"time": True}
+    for n in plant.joint_names:
+        out[f"q_{n}"] = True
+        out[f"dq_{n}"] = False
+    for j, n in enumerate(plant.joint_names):
+        if plant.actuated[j]:
+            out[f"tau_{n}"] = True
+            out[f"tau_cmd_{n}"] = False
+    return out
+
+
+def _resolve_columns(
+    plant: Plant, header: list[str], columns: Mapping[str, Any] | None, src: str
+) -> tuple[dict[str, _Column], list[str]]:
+    targets = _targets(plant)
+    where = {h: i for i, h in enumerate(header)}
+    listing = f"its columns are: {', '.join(header)}"
+    spec: dict[str, tuple[str, float, float]] = {}
+    for key, value in (columns or {}).items():
+        if key not in targets:
+            raise DataError(
+                f"{src}: unknown name {key!r} in the column mapping; for {plant.name} the names are: "
+                f"{', '.join(targets)}"
+            )
+        spec[str(key)] = _column_spec(key, value, src)
+    for key in targets:
+        if key not in spec and key in where:
+            spec[key] = (key, 1.0, 0.0)
+    missing = [k for k, required in targets.items() if required and k not in spec]
+    if missing:
+        raise DataError(f"{src}: missing column(s) {', '.join(missing)} (needed for {plant.name}); {listing}")
+    out: dict[str, _Column] = {}
+    for key, (name, scale, offset) in spec.items():
+        if name not in where:
+            raise DataError(f"{src}: column '{name}' (mapped to {key}) is not in the file; {listing}")
+        if header.count(name) > 1:
+            raise DataError(f"{src}: column '{name}' (for {key}) appears {header.count(name)} times in the header")
+        out[key] = _Column(name, where[name], scale, offset)
+    used = {c.name for c in out.values()}
+    ignored = [h for h in header if h not in used]
+    if columns is None:
+        ddq = {f"ddq_{n}" for n in plant.joint_names}
+        stray = [h for h in ignored if h not in ddq and h.startswith(_FORMAT_PREFIXES)]
+        if stray:
+            raise DataError(
+                f"{src}: unknown column(s) {', '.join(stray)}: {plant.name} has the joints "
+                f"{', '.join(plant.joint_names)} (actuated: "
+                f"{', '.join(n for j, n in enumerate(plant.joint_names) if plant.actuated[j]) or 'none'}); "
+                f"a typo, or data of another system?"
+            )
+    return out, ignored
+
+
+def _describe(c: _Column) -> str:
+    scaled = c.name if c.scale == 1.0 else f"{c.scale:.9g} * {c.name}"
+    return scaled if c.offset == 0.0 else f"{scaled} + {c.offset:.9g}"
+
+
+def _column_spec(key: str, value: Any, src: str) -> tuple[str, float, float]:
+    if isinstance(value, str):
+        return value, 1.0, 0.0
+    if isinstance(value, Mapping) and "column" in value and set(value) <= {"column", "scale", "offset"}:
+        return str(value["column"]), float(value.get("scale", 1.0)), float(value.get("offset", 0.0))
+    raise DataError(f"{src}: the mapping of {key} must be a column name or {{column, scale, offset}}, got {value!r}")
+
+
+def _check_finite(values: dict[str, np.ndarray], labels: dict[str, str], src: str) -> None:
+    for name, x in values.items():
+        bad = np.flatnonzero(~np.isfinite(x))
+        if bad.size:
+            k = int(bad[0])
+            more = f" (and {bad.size - 1} more rows)" if bad.size > 1 else ""
+            raise DataError(f"{src}: {labels[name]}, row {k} (line {k + 2}): {x[k]} is not a finite number{more}")
+
+
+def _check_time(t: np.ndarray, label: str, src: str) -> None:
+    steps = np.diff(t)
+    back = np.flatnonzero(steps < 0)
+    same = np.flatnonzero(steps == 0)
+    if back.size and (not same.size or back[0] < same[0]):
+        k = int(back[0]) + 1
+        raise DataError(
+            f"{src}: {label} goes backwards at row {k} (line {k + 2}): {t[k]:.9g} s after {t[k - 1]:.9g} s; "
+            "time must be strictly increasing (concatenated or unsorted logs?)"
+        )
+    if same.size:
+        k = int(same[0]) + 1
+        raise DataError(
+            f"{src}: {label} repeats {t[k]:.9g} s at rows {k - 1} and {k} (lines {k + 1} and {k + 2}); "
+            f"time must be strictly increasing ({same.size} duplicate time stamp(s) in all)"
+        )
+
+
+def _check_length(n: int, min_samples: int, src: str, what: str) -> None:
+    if n < min_samples:
+        raise DataError(f"{src}: too little data: {n} {what}, at least {min_samples} are needed")
+
+
+def _optional_block(
+    values: dict[str, np.ndarray], keys: list[str], joints: Sequence[int], nv: int, src: str
+) -> np.ndarray | None:
+    present = [k in values for k in keys]
+    if not any(present):
+        return None
+    if not all(present):
+        lacking = [k for k, p in zip(keys, present, strict=True) if not p]
+        raise DataError(f"{src}: missing column(s) {', '.join(lacking)}: give them for every joint or for none")
+    out = np.zeros((len(values["time"]), nv))
+    for k, j in zip(keys, joints, strict=True):
+        out[:, j] = values[k]
+    return out
+
+
+def _check_angle_units(
+    plant: Plant, t: np.ndarray, arrays: dict[str, np.ndarray | None], labels: dict[str, str], src: str
+) -> None:
+    """Refuse hinge angles that look like degrees, or a velocity column that is not the angle's rate."""
+    q, dq = arrays["q"], arrays["dq"]
+    assert q is not None
+    for j, n in enumerate(plant.joint_names):
+        if plant.mj_model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+            continue
+        lq = labels[f"q_{n}"]
+        if dq is not None:
+            ratio = _rate_ratio(t, q[:, j], dq[:, j])
+            if ratio is not None and not 0.7 <= ratio <= 1.4:
+                ldq = labels[f"dq_{n}"]
+                if abs(ratio * _DEGREE - 1) < 0.25:
+                    why = f"{lq} looks like degrees (180/pi = 57.3); the harness expects radians"
+                elif abs(ratio / _DEGREE - 1) < 0.25:
+                    why = f"{ldq} looks like degrees per second (pi/180 = 0.0175); the harness expects rad/s"
+                elif abs(ratio + 1) < 0.3:
+                    why = f"{ldq} has the opposite sign of the angle's rate"
+                else:
+                    why = "one of the two has a wrong scale, or they belong to different joints"
+                raise DataError(
+                    f"{src}: {lq} changes {ratio:.4g} times as much as the time integral of {ldq} over the same "
+                    f"intervals (rows 0-{len(t) - 1}): {why}. Give a scale in the column mapping to convert"
+                )
+        lo, hi = plant.q_range[j]
+        x_lo, x_hi = float(q[:, j].min()), float(q[:, j].max())
+        # far outside the range (not a turn or two beyond it, as a wrap-around would be) but inside it as degrees
+        far = max(abs(x_lo), abs(x_hi)) > 3.0 * max(abs(lo), abs(hi))
+        if np.isfinite(lo) and np.isfinite(hi) and far and lo <= x_lo * _DEGREE and x_hi * _DEGREE <= hi:
+            k = int(np.argmax(np.abs(q[:, j])))
+            raise DataError(
+                f"{src}: {lq} spans [{x_lo:.4g}, {x_hi:.4g}] (row {k}, line {k + 2}: {q[k, j]:.4g}), far beyond "
+                f"the joint range [{lo:.4g}, {hi:.4g}] rad of {plant.name}, and inside it when read as degrees: the "
+                "angle looks like degrees; the harness expects radians"
+            )
+
+
+def _rate_ratio(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float | None:
+    """Median ratio of the angle's increments to the integral of the velocity over windows of ~0.05 s.
+
+    None when the joint moves too little for the ratio to mean anything.
+    """
+    h = float(np.median(np.diff(t)))
+    w = int(min(max(3, round(0.05 / h)), len(t) // 4))
+    if w < 1:
+        return None
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    dx, di = x[w:] - x[:-w], integral[w:] - integral[:-w]
+    big = np.abs(di) >= max(0.25 * np.abs(di).max(), 0.02)
+    if big.sum() < 10:
+        return None
+    return float(np.median(dx[big] / di[big]))
+
+
+def _startup_rows(t: np.ndarray) -> int:
+    """Leading rows whose steps are far off the median, when they are only a few."""
+    steps = np.diff(t)
+    off = np.abs(steps / np.median(steps) - 1.0) > _STARTUP_TOL
+    if not off[0] or off.all():
+        return 0
+    first_regular = int(np.argmin(off))
+    return first_regular if first_regular <= _STARTUP_MAX_FRACTION * len(t) else 0
+
+
+def _cut(arrays: dict[str, np.ndarray | None], start: int, stop: int) -> dict[str, np.ndarray | None]:
+    return {k: None if a is None else a[start:stop] for k, a in arrays.items()}
+
+
+def _repair_joint(
+    t: np.ndarray,
+    x: np.ndarray,
+    v: np.ndarray | None,
+    *,
+    max_speed: float | None,
+    label: str,
+    rows: np.ndarray,
+    src: str,
+    repair: bool,
+) -> tuple[np.ndarray, list[Repair], int, int]:
+    """Find the steps of one angle that no velocity allows, and unwrap, interpolate, trim or refuse them.
+
+    Returns:
+        The repaired angle, the repairs, and the rows to drop at the head and at the tail.
+    """
+    n = len(x)
+    dt = np.diff(t)
+    dt_eff = np.maximum(dt, np.median(dt))  # timestamps jitter; the motion does not go faster for it
+    s = np.diff(x)
+    if max_speed is not None:
+        speed = float(max_speed)
+    elif v is not None:
+        speed = 3.0 * float(np.percentile(np.abs(v), 99.9))
+    else:
+        speed = 3.0 * float(np.percentile(np.abs(s) / dt_eff, 99.0))
+    d2 = np.diff(x, 2)
+    noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if n > 2 else 0.0
+    floor = max(_MIN_JUMP, 10.0 * noise)
+    bound = speed * dt_eff + floor
+    flagged = np.flatnonzero(np.abs(s) > bound)
+    if not flagged.size:
+        return x, [], 0, 0
+
+    def at(k: int) -> str:
+        return f"between rows {rows[k]} and {rows[k + 1]} (lines {rows[k] + 2}-{rows[k + 1] + 2}, t = {t[k + 1]:.6g} s)"
+
+    if not repair:
+        k = int(flagged[0])
+        turn = " (about a whole turn: an encoder wrap-around?)" if abs(abs(s[k]) - 2 * np.pi) <= bound[k] else ""
+        raise DataError(
+            f"{src}: {label} jumps by {s[k]:.4g} {at(k)}{turn}, more than any velocity allows ({bound[k]:.3g} at "
+            f"{speed:.3g} rad/s); {flagged.size} such step(s) in all. Not repaired (repair=False)"
+        )
+    ok = np.abs(s) <= bound
+    rate = np.where(ok, s / dt, np.nan)
+    step_fix = np.zeros(n - 1)
+    wraps: list[int] = []
+    runs: list[tuple[int, int]] = []  # glitch rows [a, b]
+    head, tail = 0, 0
+    i = 0
+    while i < flagged.size:
+        k = int(flagged[i])
+        near = rate[max(0, k - 5) : k + 6]
+        r = float(np.nanmedian(near)) if np.isfinite(near).any() else 0.0
+        jump = s[k] - r * dt[k]
+        turns = round(jump / (2 * np.pi))
+        if turns and abs(jump - 2 * np.pi * turns) <= bound[k]:
+            step_fix[k] = -2 * np.pi * turns
+            wraps.append(k)
+            i += 1
+            continue
+        back = [
+            int(e)
+            for e in flagged[i + 1 :]
+            if e - k <= _GLITCH_MAX_RUN
+            and abs(x[e + 1] + step_fix[k:e].sum() - x[k] - r * (t[e + 1] - t[k])) <= speed * (t[e + 1] - t[k]) + floor
+        ]
+        if back:
+            runs.append((k + 1, back[0]))
+            i = int(np.searchsorted(flagged, back[0], side="right"))
+        elif k < _GLITCH_MAX_RUN:
+            head, i = k + 1, i + 1
+        elif k >= n - 1 - _GLITCH_MAX_RUN:
+            tail, i = n - 1 - k, flagged.size
+        else:
+            raise DataError(
+                f"{src}: {label} jumps by {s[k]:.4g} {at(k)} and stays there: faster than any velocity allows "
+                f"({bound[k]:.3g} at {speed:.3g} rad/s), not a whole turn (wrap-around), and not a glitch that "
+                f"returns within {_GLITCH_MAX_RUN} samples. An encoder slip, or two records joined?"
+            )
+    n_bad = sum(b - a + 1 for a, b in runs) + head + tail
+    if n_bad > max(1, _GLITCH_MAX_FRACTION * n):
+        first = ", ".join(str(rows[a]) for a, _ in runs[:5])
+        raise DataError(
+            f"{src}: {label} has {n_bad} glitch samples (first at rows {first}), more than "
+            f"{_GLITCH_MAX_FRACTION:.0%} of its {n} rows: the sensor is not trusted and nothing was repaired"
+        )
+    fixed = x + np.concatenate([[0.0], np.cumsum(step_fix)])
+    good = np.ones(n, bool)
+    for a, b in runs:
+        good[a : b + 1] = False
+    good[:head] = False
+    good[n - tail :] = False
+    for a, b in runs:
+        window = np.flatnonzero(good[max(0, a - 8) : b + 9]) + max(0, a - 8)
+        fixed[a : b + 1] = CubicSpline(t[window], fixed[window])(t[a : b + 1])
+    out: list[Repair] = []
+    if wraps:
+        out.append(
+            Repair(
+                "wrap",
+                label,
+                tuple(int(rows[k + 1]) for k in wraps),
+                f"{label}: unwrapped {len(wraps)} encoder wrap-around(s) (jumps of a whole turn, 2 pi rad) at rows "
+                f"{', '.join(str(rows[k + 1]) for k in wraps[:10])}",
+            )
+        )
+    if runs:
+        biggest = max(float(np.max(np.abs(x[a : b + 1] - fixed[a : b + 1]))) for a, b in runs)
+        out.append(
+            Repair(
+                "glitch",
+                label,
+                tuple(int(rows[a]) for a, _ in runs),
+                f"{label}: re-interpolated {len(runs)} glitch(es) of {sum(b - a + 1 for a, b in runs)} sample(s) in "
+                f"all (off track by up to {biggest:.3g}) at rows {', '.join(str(rows[a]) for a, _ in runs[:10])}",
+            )
+        )
+    if head or tail:
+        edge = [int(r) for r in rows[:head]] + [int(r) for r in rows[n - tail :]]
+        out.append(
+            Repair(
+                "edge_glitch",
+                label,
+                tuple(edge),
+                f"{label}: dropped {len(edge)} row(s) at the record's edge that jump off track: rows {edge[:10]}",
+            )
+        )
+    return fixed, out, head, tail
+
+
+def _regularise(
+    t: np.ndarray, arrays: dict[str, np.ndarray | None], rows: np.ndarray, *, resample: bool, label: str, src: str
+) -> tuple[np.ndarray, dict[str, np.ndarray | None], Repair | None]:
+    """Interpolate irregular sampling onto a uniform grid at the median step (or refuse it)."""
+    steps = np.diff(t)
+    h = float(np.median(steps))
+    dev = np.abs(steps / h - 1.0)
+    if dev.max() <= _REGULAR_TOL:
+        return t, arrays, None
+    worst = int(np.argmax(dev))
+    irregular = int(np.sum(dev > _REGULAR_TOL))
+
+    def where(k: int) -> str:
+        return f"row {rows[k + 1]} (line {rows[k + 1] + 2})"
+
+    gaps = np.flatnonzero(steps > _MAX_GAP_STEPS * h)
+    if gaps.size:
+        k = int(gaps[0])
+        raise DataError(
+            f"{src}: {label} has a gap of {steps[k] * 1e3:.4g} ms before {where(k)} ({steps[k] / h:.1f} times the "
+            f"median step of {h * 1e3:.4g} ms; {gaps.size} such gap(s)): too long to interpolate across. Split the "
+            "file there"
+        )
+    summary = (
+        f"{irregular} of {len(steps)} steps differ from the median {h * 1e3:.4g} ms by more than "
+        f"{_REGULAR_TOL:.0%} (the largest, {steps[worst] * 1e3:.4g} ms, before {where(worst)})"
+    )
+    if not resample:
+        raise DataError(f"{src}: {label} is irregularly sampled: {summary}. Pass resample=True to interpolate it")
+    grid = t[0] + h * np.arange(int(np.floor((t[-1] - t[0]) / h + 1e-9)) + 1)
+    out: dict[str, np.ndarray | None] = {}
+    for key, a in arrays.items():
+        if a is None:
+            out[key] = None
+        elif key == "q":
+            out[key] = CubicSpline(t, a, axis=0)(grid)  # smooth motion: keeps the accelerations linear loses
+        else:
+            out[key] = np.column_stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])])
+    message = (
+        f"{summary}: resampled onto a uniform {1 / h:.4g} Hz grid ({len(t)} -> {len(grid)} rows), angles by cubic "
+        "spline, velocities and torques linearly"
+    )
+    return grid, out, Repair("resample", "time", (int(rows[worst + 1]),), message)

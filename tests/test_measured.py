@@ -1,0 +1,419 @@
+"""Reading measured data: every input check refuses a bad file with file, column and row, or repairs and reports."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from envs.dataset import Dataset, write_csv
+from envs.errors import DataError
+from envs.measured import check_excitation, read_many, read_measured, split_train_validation
+from envs.plant import Plant, load_plant
+from identify.base import base_parameters
+from identify.model import ParameterModel
+
+CONF_DATA = Path(__file__).resolve().parents[1] / "conf" / "data"
+FS = 500.0
+
+
+@pytest.fixture(scope="module")
+def plant() -> Plant:
+    return load_plant("two_link")
+
+
+def motion(t: np.ndarray, *, amplitude: tuple[float, float] = (0.5, 0.8)) -> tuple[np.ndarray, ...]:
+    """Smooth two-joint motion: q, dq, ddq (N, 2) [rad, rad/s, rad/s^2]."""
+    w = 2 * np.pi * np.array([1.0, 1.7])
+    a = np.array(amplitude)
+    phase = np.array([0.0, 0.3])
+    q = a * np.sin(w * t[:, None] + phase) + np.array([0.1, -0.2])
+    dq = a * w * np.cos(w * t[:, None] + phase)
+    ddq = -a * w**2 * np.sin(w * t[:, None] + phase)
+    return q, dq, ddq
+
+
+def table(n: int = 1000, *, amplitude: tuple[float, float] = (0.5, 0.8)) -> dict[str, np.ndarray]:
+    """Columns of a clean file in the measured-data format."""
+    t = np.arange(n) / FS
+    q, dq, _ = motion(t, amplitude=amplitude)
+    return {
+        "time": t,
+        "q_shoulder": q[:, 0],
+        "q_elbow": q[:, 1],
+        "dq_shoulder": dq[:, 0],
+        "dq_elbow": dq[:, 1],
+        "tau_shoulder": np.sin(3 * t),
+        "tau_elbow": np.cos(2 * t),
+    }
+
+
+def write(path: Path, columns: dict[str, np.ndarray], *, cell: tuple[str, int, str] | None = None) -> Path:
+    """Write columns as a CSV; `cell` = (column, row, text) overwrites one cell with raw text."""
+    names = list(columns)
+    body = np.column_stack([np.asarray(columns[c], float) for c in names])
+    lines = [",".join(names)] + [",".join(repr(float(v)) for v in row) for row in body]
+    if cell is not None:
+        column, row, text = cell
+        fields = lines[row + 1].split(",")
+        fields[names.index(column)] = text
+        lines[row + 1] = ",".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def edited(edit: Callable[[dict[str, np.ndarray]], None], n: int = 1000) -> dict[str, np.ndarray]:
+    cols = table(n)
+    edit(cols)
+    return cols
+
+
+def test_clean_file_reads_without_repairs(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    data = read_measured(write(tmp_path / "clean.csv", cols), plant)
+    assert data.joint_names == ("shoulder", "elbow")
+    assert data.meta["repairs"] == ()
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])
+    assert data.meta["sample_rate_hz"] == pytest.approx(FS)
+
+
+def test_round_trip_with_write_csv(tmp_path: Path, plant: Plant) -> None:
+    t = np.arange(400) / FS
+    q, dq, ddq = motion(t)
+    original = Dataset(
+        time=t,
+        q=q,
+        tau=np.column_stack([np.sin(t), np.cos(t)]),
+        joint_names=plant.joint_names,
+        actuated=plant.actuated,
+        dq=dq,
+        ddq=ddq,  # written as ddq_<joint>: accepted by the reader and ignored
+        tau_cmd=np.column_stack([np.sin(t), -np.cos(t)]),
+    )
+    write_csv(original, tmp_path / "data.csv")
+    back = read_measured(tmp_path / "data.csv", plant)
+    for name in ("time", "q", "dq", "tau", "tau_cmd"):
+        np.testing.assert_allclose(getattr(back, name), getattr(original, name), rtol=1e-9, atol=1e-12)
+    assert back.ddq is None
+    assert set(back.meta["ignored_columns"]) == {"ddq_shoulder", "ddq_elbow"}
+
+
+def test_unactuated_joint_needs_no_torque_column(tmp_path: Path) -> None:
+    wheel = load_plant("wheel_pendulum")
+    t = np.arange(200) / FS
+    q = motion(t)[0]
+    write(tmp_path / "wheel.csv", {"time": t, "q_pendulum": q[:, 0], "q_wheel": q[:, 1], "tau_wheel": np.sin(t)})
+    data = read_measured(tmp_path / "wheel.csv", wheel)
+    assert np.all(data.tau[:, 0] == 0) and list(data.actuated) == [False, True]
+    cols = {"time": t, "q_pendulum": q[:, 0], "q_wheel": q[:, 1], "tau_pendulum": t, "tau_wheel": t}
+    write(tmp_path / "torque.csv", cols)
+    with pytest.raises(DataError, match=r"unknown column\(s\) tau_pendulum: .*\(actuated: wheel\)"):
+        read_measured(tmp_path / "torque.csv", wheel)
+
+
+def test_missing_column_is_named(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    del cols["tau_elbow"]
+    with pytest.raises(DataError, match=r"missing\.csv: missing column\(s\) tau_elbow .*its columns are: time"):
+        read_measured(write(tmp_path / "missing.csv", cols), plant)
+
+
+def test_partial_optional_columns_are_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    del cols["dq_elbow"]
+    with pytest.raises(DataError, match=r"missing column\(s\) dq_elbow: give them for every joint or for none"):
+        read_measured(write(tmp_path / "partial.csv", cols), plant)
+
+
+@pytest.mark.parametrize(
+    ("rename", "columns", "message"),
+    [
+        ({"dq_elbow": "dq_elbo"}, None, r"unknown column\(s\) dq_elbo: two_link has the joints shoulder, elbow"),
+        ({}, {"q_wrist": "q_elbow"}, r"unknown name 'q_wrist' in the column mapping"),
+        ({}, {"q_elbow": "pos_meas2"}, r"column 'pos_meas2' \(mapped to q_elbow\) is not in the file"),
+    ],
+)
+def test_unknown_column_is_named(
+    tmp_path: Path, plant: Plant, rename: dict[str, str], columns: dict[str, str] | None, message: str
+) -> None:
+    cols = {rename.get(k, k): v for k, v in table().items()}
+    with pytest.raises(DataError, match=message):
+        read_measured(write(tmp_path / "unknown.csv", cols), plant, columns=columns)
+
+
+def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant) -> None:
+    path = write(tmp_path / "text.csv", table(), cell=("tau_elbow", 7, "n/a"))
+    with pytest.raises(DataError, match=r"text\.csv: column 'tau_elbow', row 7 \(line 9\): 'n/a' is not a number"):
+        read_measured(path, plant)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (None, r"absent\.csv: no such file"),
+        ("", r"absent\.csv: the file is empty"),
+        ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"no data rows after the header"),
+        ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n1,2,3\n", r"row 1 \(line 3\) has 3 fields"),
+    ],
+)
+def test_malformed_files_are_refused(tmp_path: Path, plant: Plant, text: str | None, message: str) -> None:
+    path = tmp_path / "absent.csv"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(DataError, match=message):
+        read_measured(path, plant)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_nan_and_inf_are_located(tmp_path: Path, plant: Plant, value: float) -> None:
+    cols = table()
+    cols["q_elbow"][123] = value
+    cols["q_elbow"][500] = value
+    path = write(tmp_path / "bad.csv", cols)
+    with pytest.raises(DataError, match=r"bad\.csv: column 'q_elbow', row 123 \(line 125\): .* 1 more rows"):
+        read_measured(path, plant)
+
+
+def test_time_going_backwards_is_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["time"][300] = cols["time"][298]
+    with pytest.raises(
+        DataError, match=r"column 'time' goes backwards at row 300 \(line 302\): 0\.596 s after 0\.598 s"
+    ):
+        read_measured(write(tmp_path / "back.csv", cols), plant)
+
+
+def test_duplicate_time_is_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["time"][300] = cols["time"][299]
+    with pytest.raises(DataError, match=r"column 'time' repeats 0\.598 s at rows 299 and 300 \(lines 301 and 302\)"):
+        read_measured(write(tmp_path / "dup.csv", cols), plant)
+
+
+def test_startup_rows_are_trimmed_with_a_note(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    steps = np.full(999, 1 / FS)
+    steps[:4] = [0.0034, 0.0036, 0.0032, 0.0033]  # as in the DFKI logs
+    cols["time"] = np.concatenate([[0.0], np.cumsum(steps)])
+    data = read_measured(write(tmp_path / "startup.csv", cols), plant)
+    (note,) = data.meta["repairs"]
+    assert note.kind == "startup_trim" and note.rows == (0, 1, 2, 3)
+    assert data.n_samples == 996
+    assert data.time[0] == pytest.approx(cols["time"][4])
+
+
+def test_jittery_sampling_is_resampled_onto_a_uniform_grid_with_a_report(tmp_path: Path, plant: Plant) -> None:
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.7, 1.3, 1500)) / FS  # +-30 % jitter, like DFKI file 12
+    q = motion(t)[0]
+    cols = {"time": t, "q_shoulder": q[:, 0], "q_elbow": q[:, 1], "tau_shoulder": t, "tau_elbow": -t}
+    data = read_measured(write(tmp_path / "jitter.csv", cols), plant)
+    (report,) = data.meta["repairs"]
+    assert report.kind == "resample" and "resampled onto a uniform" in report.message
+    steps = np.diff(data.time)
+    assert np.ptp(steps) < 1e-9
+    np.testing.assert_allclose(data.q, motion(data.time)[0], atol=2e-4)  # the spline keeps the motion
+    np.testing.assert_allclose(data.tau[:, 0], data.time, atol=1e-12)
+
+
+def test_irregular_sampling_is_refused_when_resampling_is_off(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["time"][600:] += 1.5 / FS  # a dropped sample and a half
+    with pytest.raises(DataError, match=r"column 'time' is irregularly sampled: 1 of 999 steps .* before row 600"):
+        read_measured(write(tmp_path / "irregular.csv", cols), plant, resample=False)
+
+
+def test_a_gap_too_long_to_interpolate_is_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["time"][600:] += 0.1  # 50 samples missing
+    with pytest.raises(DataError, match=r"gap of 102 ms before row 600 \(line 602\).*Split the file there"):
+        read_measured(write(tmp_path / "gap.csv", cols), plant)
+
+
+def test_angles_in_degrees_are_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["q_elbow"] = np.degrees(cols["q_elbow"])
+    with pytest.raises(DataError, match=r"column 'q_elbow' changes 57\.\d+ times .* looks like degrees"):
+        read_measured(write(tmp_path / "deg.csv", cols), plant)
+
+
+def test_a_scale_in_the_mapping_converts_degrees(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["elbow_deg"] = np.degrees(cols.pop("q_elbow"))
+    mapping = {"q_elbow": {"column": "elbow_deg", "scale": np.pi / 180}}
+    data = read_measured(write(tmp_path / "deg.csv", cols), plant, columns=mapping)
+    np.testing.assert_allclose(data.q[:, 1], table()["q_elbow"], atol=1e-12)
+    assert data.meta["columns"]["q_elbow"] == "0.0174532925 * elbow_deg"
+
+
+def test_angles_in_degrees_without_velocity_are_refused_by_the_joint_range(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    del cols["dq_shoulder"], cols["dq_elbow"]
+    cols["q_shoulder"] = np.degrees(cols["q_shoulder"])
+    with pytest.raises(
+        DataError, match=r"column 'q_shoulder' spans .* far beyond the joint range .* looks like degrees"
+    ):
+        read_measured(write(tmp_path / "deg.csv", cols), plant)
+
+
+def test_velocity_of_the_wrong_sign_is_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["dq_shoulder"] = -cols["dq_shoulder"]
+    with pytest.raises(DataError, match=r"column 'dq_shoulder' has the opposite sign"):
+        read_measured(write(tmp_path / "sign.csv", cols), plant)
+
+
+def test_encoder_wrap_around_is_unwrapped_with_a_report(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    clean = cols["q_shoulder"].copy()
+    cols["q_shoulder"] = np.where(clean > 0.3, clean - 2 * np.pi, clean)  # an encoder reading (-5.98, 0.3]
+    data = read_measured(write(tmp_path / "wrap.csv", cols), plant)
+    (report,) = data.meta["repairs"]
+    assert report.kind == "wrap" and "q_shoulder" in report.column and len(report.rows) > 1
+    np.testing.assert_allclose(data.q[:, 0] - data.q[0, 0], clean - clean[0], atol=1e-12)
+
+
+def test_wrap_around_is_refused_when_repair_is_off(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["q_elbow"][400:] += 2 * np.pi
+    with pytest.raises(
+        DataError, match=r"column 'q_elbow' jumps by 6\.2\d* between rows 399 and 400 .*whole turn.*repair=False"
+    ):
+        read_measured(write(tmp_path / "wrap.csv", cols), plant, repair=False)
+
+
+def test_glitches_are_interpolated_with_a_report(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    clean = cols["q_elbow"].copy()
+    cols["q_elbow"][250] += 0.7  # one bad sample
+    cols["q_elbow"][600:603] = [3.0, -2.0, 3.0]  # three
+    data = read_measured(write(tmp_path / "glitch.csv", cols), plant)
+    (report,) = data.meta["repairs"]
+    assert report.kind == "glitch" and report.rows == (250, 600)
+    assert "2 glitch(es) of 4 sample(s)" in report.message
+    np.testing.assert_allclose(data.q[:, 1], clean, atol=1e-5)
+
+
+def test_glitches_and_wraps_are_found_without_a_velocity_column(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    del cols["dq_shoulder"], cols["dq_elbow"]
+    t = cols["time"]
+    spin = 5.0 * t  # the shoulder turns continuously: an encoder in [-pi, pi) wraps at every turn
+    cols["q_shoulder"] = np.mod(spin + np.pi, 2 * np.pi) - np.pi
+    cols["q_elbow"][300] -= 0.5
+    data = read_measured(write(tmp_path / "spin.csv", cols), plant)
+    kinds = {r.kind: r for r in data.meta["repairs"]}
+    assert set(kinds) == {"wrap", "glitch"} and len(kinds["wrap"].rows) == 2 and kinds["glitch"].rows == (300,)
+    np.testing.assert_allclose(data.q[:, 0] - data.q[0, 0], spin - spin[0], atol=1e-12)
+    np.testing.assert_allclose(data.q[:, 1], table()["q_elbow"], atol=1e-5)
+
+
+def test_a_glitch_at_the_edge_drops_the_row(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["q_shoulder"][-1] += 1.0
+    data = read_measured(write(tmp_path / "edge.csv", cols), plant)
+    (report,) = data.meta["repairs"]
+    assert report.kind == "edge_glitch" and report.rows == (999,)
+    assert data.n_samples == 999
+
+
+def test_too_many_glitches_are_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["q_elbow"][100:1000:50] += 0.7  # 18 glitches: 1.8 % of the rows
+    with pytest.raises(DataError, match=r"column 'q_elbow' has 18 glitch samples \(first at rows 100, 150"):
+        read_measured(write(tmp_path / "glitchy.csv", cols), plant)
+
+
+def test_a_jump_that_stays_is_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["q_elbow"][500:] += 1.0
+    with pytest.raises(DataError, match=r"jumps by (0\.99|1\.0)\d* between rows 499 and 500 .* and stays there"):
+        read_measured(write(tmp_path / "slip.csv", cols), plant)
+
+
+def test_too_little_data_is_refused(tmp_path: Path, plant: Plant) -> None:
+    with pytest.raises(DataError, match=r"short\.csv: too little data: 20 rows, at least 50 are needed"):
+        read_measured(write(tmp_path / "short.csv", table(20)), plant)
+
+
+def excitation_regressor(plant: Plant, data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Base regressor of two_link with armature and viscous friction on the data's (exact) states."""
+    model = ParameterModel(plant, ("armature", "viscous_friction"))
+    base = base_parameters(model, np.random.default_rng(0))
+    amplitude = (float(np.ptp(data.q[:, 0])) / 2, float(np.ptp(data.q[:, 1])) / 2)
+    q, dq, ddq = motion(data.time, amplitude=amplitude)
+    return base.columns(model.regressor(q, dq, ddq)), base.names
+
+
+def test_check_excitation_accepts_rich_motion(tmp_path: Path, plant: Plant) -> None:
+    data = read_measured(write(tmp_path / "rich.csv", table()), plant)
+    W, names = excitation_regressor(plant, data)
+    check = check_excitation(W, names=names, source=data.source)
+    assert check.rank == len(names) and check.cond < 1e3
+
+
+def test_too_little_excitation_names_the_parameters(tmp_path: Path, plant: Plant) -> None:
+    data = read_measured(write(tmp_path / "still.csv", table(amplitude=(0.5, 0.0))), plant)  # the elbow never moves
+    W, names = excitation_regressor(plant, data)
+    with pytest.raises(DataError, match=r"still\.csv: the data do not excite Ia2, Fv2 at all"):
+        check_excitation(W, names=names, source=data.source)
+    # both joints barely move: the gravity columns of a nearly fixed posture are nearly collinear
+    data = read_measured(write(tmp_path / "small.csv", table(amplitude=(1e-3, 1e-3))), plant)
+    W, names = excitation_regressor(plant, data)
+    with pytest.raises(DataError, match=r"small\.csv: too little excitation .*condition number .* weakest: .*MX1"):
+        check_excitation(W, names=names, source=data.source)
+
+
+def test_too_little_data_for_the_parameters_is_refused(plant: Plant) -> None:
+    with pytest.raises(DataError, match=r"too little data: 20 equations for 11 parameters"):
+        check_excitation(np.ones((10, 2, 11)), names=[f"p{i}" for i in range(11)], source="x.csv")
+
+
+def test_split_by_file_and_by_time_block(tmp_path: Path, plant: Plant) -> None:
+    paths = [write(tmp_path / f"run{i}.csv", table()) for i in range(3)]
+    datasets = read_many(paths, plant)
+    split = split_train_validation(datasets)
+    assert split.by == "file" and [Path(d.source).name for d in split.validation] == ["run2.csv"]
+    named = split_train_validation(datasets, validation=["run0"])
+    assert [Path(d.source).name for d in named.train] == ["run1.csv", "run2.csv"]
+    with pytest.raises(ValueError, match="'run9' is not among the files read"):
+        split_train_validation(datasets, validation=["run9"])
+    block = split_train_validation(datasets[:1], validation_fraction=0.25)
+    assert block.by == "time_block"
+    (train,), (val,) = block.train, block.validation
+    assert (train.n_samples, val.n_samples) == (750, 250) and train.time[-1] < val.time[0]
+    assert block.describe()["validation"][0]["n_samples"] == 250
+
+
+def test_read_many_reports_every_bad_file(tmp_path: Path, plant: Plant) -> None:
+    good = write(tmp_path / "good.csv", table())
+    short = write(tmp_path / "short.csv", table(10))
+    nan = write(tmp_path / "nan.csv", edited(lambda c: c["tau_elbow"].__setitem__(5, np.nan)))
+    with pytest.raises(DataError) as err:
+        read_many([good, short, nan], plant)
+    assert "short.csv: too little data" in str(err.value) and "nan.csv: column 'tau_elbow', row 5" in str(err.value)
+    with pytest.raises(DataError, match="listed more than once"):
+        read_many([good, good], plant)
+
+
+def test_dfki_logs_read_through_the_data_config(shared_data: Path, plant: Plant, monkeypatch) -> None:
+    monkeypatch.setitem(os.environ, "SYSID_DATA_DIR", str(shared_data))
+    cfg = OmegaConf.load(CONF_DATA / "dfki_double_pendulum.yaml")
+    datasets = read_many(cfg.path, plant, columns=cfg.columns, repair=cfg.repair, resample=cfg.resample)
+    assert len(datasets) == 5
+    for data in datasets:
+        kinds = [r.kind for r in data.meta["repairs"]]
+        assert kinds[0] == "startup_trim" and "glitch" not in kinds and "wrap" not in kinds
+        assert np.all(np.abs(data.q) < 3.5) and np.all(np.abs(data.tau) < 8.5)
+        assert np.ptp(np.diff(data.time)) < 0.02 * data.dt  # within 1 % of uniform, as the derivative filters require
+    rates = {Path(d.source).stem: d.meta["sample_rate_hz"] for d in datasets}
+    assert rates["trajectory_00"] == pytest.approx(500, rel=1e-3)
+    assert rates["trajectory_12"] == pytest.approx(616, rel=0.01)
+    split = split_train_validation(datasets, validation=list(cfg.validation))
+    assert [Path(d.source).stem for d in split.validation] == ["trajectory_02", "trajectory_12"]
+    OmegaConf.load(CONF_DATA / "csv.yaml")  # the format's config parses too
