@@ -173,7 +173,9 @@ def _run(
         actuated=plant.actuated.copy(),
         ddq=ddq,
         tau_cmd=cmd,
-        tau_lead_s=0.5 * dt_sample,  # the command is held over [t_k, t_k + dt)
+        # the command is held over [t_k, t_k + dt); semi-implicit Euler makes the sampled positions trail the
+        # continuous motion by half a physics step, so the torque's instant is (dt - h) / 2 after the sample
+        tau_lead_s=0.5 * (dt_sample - m.opt.timestep),
         meta={
             "q_true": q,
             "dq_true": dq,

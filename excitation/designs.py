@@ -28,11 +28,14 @@ def default_design(
 ) -> FourierDesign:
     """The fixed default shape, scaled to the limits.
 
-    Every joint gets every harmonic with amplitude 1/l and phases spread by the golden ratio over joints
-    and harmonics, so that no two joints move alike and every base parameter is excited.
+    Every joint gets every harmonic with amplitude 1/l and quasi-random phases (golden ratio and sqrt 2 in a
+    joint-harmonic product), so that no two joints move alike and every base parameter is excited.
     """
     n = plant.nv
-    phase = 2 * np.pi * _GOLDEN * (np.arange(n)[:, None] * harmonics + np.arange(harmonics)[None, :] + 1) * 3.0
+    j, h = np.arange(1, n + 1)[:, None], np.arange(1, harmonics + 1)[None, :]
+    # phases must not split into a joint term plus a harmonic term: then every joint's motion would be a mix
+    # of the same two signals, and some parameter combinations would not be excited at all
+    phase = 2 * np.pi * ((_GOLDEN * j * h**2 + np.sqrt(2.0) * j**2 * h) % 1.0)
     amp = 1.0 / np.arange(1, harmonics + 1)[None, :]
     shape = FourierDesign(base_freq_hz, amp * np.cos(phase), amp * np.sin(phase), _centre(limits))
     return _fit(plant, shape, limits, torque_driven)

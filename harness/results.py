@@ -45,7 +45,9 @@ def summary_table(results: dict[str, Any]) -> str:
     rows = [("base parameter", "true", "estimate", "std", "rel.err", "z")]
     for p in results["base_parameters"]:
         rel = "-" if p["rel_error"] is None else f"{p['rel_error']:+.2%}"
-        rows.append((p["name"], f"{p['true']:.6g}", f"{p['estimate']:.6g}", f"{p['std']:.2g}", rel, f"{p['z']:+.2f}"))
+        std = "-" if p["std"] is None else f"{p['std']:.2g}"
+        z = "-" if p["z"] is None else f"{p['z']:+.2f}"
+        rows.append((p["name"], f"{p['true']:.6g}", f"{p['estimate']:.6g}", std, rel, z))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = [
         "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True)))

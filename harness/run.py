@@ -105,19 +105,28 @@ def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Data
     return limits.ratios(q, dq, ddq, inverse_dynamics(plant, q, dq, ddq))
 
 
-def _cutoff(cfg: DictConfig, design: FourierDesign) -> float:
-    if cfg.identify.cutoff_hz is not None:
-        return float(cfg.identify.cutoff_hz)
-    return max(10.0 * design.harmonics * design.base_freq_hz, 5.0)
+def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any]:
+    """Options of the derivative method: the cut-off (config, or 10 x the highest harmonic, >= 5 Hz) and, for
+    the spectral method, the excitation's period (it keeps only the excitation's harmonics)."""
+    method = cfg.identify.derivatives
+    if method == "simulator":
+        return {}
+    cutoff = cfg.identify.cutoff_hz
+    options: dict[str, Any] = {
+        "cutoff_hz": float(cutoff) if cutoff is not None else max(10.0 * design.harmonics * design.base_freq_hz, 5.0)
+    }
+    if method == "spectral":
+        options["period_s"] = design.period_s
+    return options
 
 
 def _identify(
-    cfg: DictConfig, data: Dataset, model: ParameterModel, base: BaseParameters, cutoff_hz: float
-) -> tuple[Estimate, Any]:
-    options = {"cutoff_hz": cutoff_hz} if cfg.identify.derivatives == "butterworth" else {}
-    states = derive_states(data, cfg.identify.derivatives, **options)
+    cfg: DictConfig, data: Dataset, model: ParameterModel, base: BaseParameters, design: FourierDesign
+) -> tuple[Estimate, Problem]:
+    states = derive_states(data, cfg.identify.derivatives, **_derivative_options(cfg, design))
     problem = build_problem(data, states, model, base)
-    return estimate(cfg.estimator.name, problem, **OmegaConf.to_container(cfg.estimator.options)), problem  # type: ignore[arg-type]
+    options = OmegaConf.to_container(cfg.estimator.options)
+    return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
 
 
 def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
@@ -157,15 +166,14 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
     with _timed(timing, "simulation"):
         data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods))
     with _timed(timing, "identification"):
-        est, problem = _identify(cfg, data, model, base, _cutoff(cfg, design))
+        est, problem = _identify(cfg, data, model, base, design)
         beta_true = base.project(model.truth())
         comparison = compare_with_truth(est, beta_true)
         derived = _derived(plant, base, est)
     with _timed(timing, "validation"):
         val_design = design_excitation("random", plant, limits, rng=rng_val, **design_kw)
         val_data = simulate_design(plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods))
-        options = {"cutoff_hz": _cutoff(cfg, val_design)} if cfg.identify.derivatives == "butterworth" else {}
-        val_states = derive_states(val_data, cfg.identify.derivatives, **options)
+        val_states = derive_states(val_data, cfg.identify.derivatives, **_derivative_options(cfg, val_design))
         rows = val_states.valid
         val_pred = predict_torque(model, base, est.beta, val_states.q[rows], val_states.dq[rows], val_states.ddq[rows])
         val_rms = torque_rms(val_pred, val_data.tau[rows], plant.joint_names)

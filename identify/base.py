@@ -70,7 +70,7 @@ def base_parameters(
     basis = np.zeros((W.shape[0], 0))
     keep: list[int] = []
     for c in range(W.shape[1]):
-        if norms[c] == 0:
+        if norms[c] <= tol * norms.max():  # a column zero up to rounding (e.g. a mass moment along its own axis)
             continue
         v = W[:, c] / norms[c]
         for _ in range(2):  # re-orthogonalise once: classical Gram-Schmidt twice is stable enough here

@@ -139,7 +139,7 @@ def _butterworth(
     elif edges == "periodic":
         n = _whole_periods(data, period_s)
         q, dq, ddq = (np.array(data.q) for _ in range(3))
-        pad = min(n, int(np.ceil(6.0 / cutoff * fs)))
+        pad = min(n, int(np.ceil(6.0 / cutoff * fs)) + 20 * order)  # long enough for the ringing near Nyquist
         wrapped = np.concatenate([data.q[n - pad : n], data.q[:n], data.q[:pad]])
         smooth = signal.sosfiltfilt(sos, wrapped, axis=0, padtype=None)[pad : pad + n]
         q[:n] = smooth
