@@ -1,0 +1,204 @@
+"""`sysid-diagnose`: the discrepancy analysis of DESIGN.md on measured data.
+
+`run(cfg)` reads the data (`envs.measured`), splits it (by file, or a contiguous time block of one file),
+runs `identify.diagnose.diagnose` and writes `diagnosis.json`, `diagnosis.rrd` and `<system>_calibrated.xml`
+into the Hydra run directory (or `cfg.output_dir` outside Hydra). Nothing is written until the analysis has
+finished, and a failure while writing removes what was written: a run directory holds all three or none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import hydra
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from envs.dataset import atomic_write
+from envs.measured import read_many, split_train_validation
+from envs.plant import load_plant
+from harness.results import to_jsonable, write_json
+from identify.diagnose import (
+    CANDIDATE_EFFECTS,
+    Diagnosis,
+    ReferenceModel,
+    SelectionOptions,
+    author_accel,
+    author_torque,
+    diagnose,
+    load_author_model,
+)
+
+__all__ = ["CONF_DIR", "main", "reference_models", "run"]
+
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def _output_dir(cfg: DictConfig) -> Path:
+    if cfg.get("output_dir"):
+        return Path(cfg.output_dir)
+    from hydra.core.hydra_config import HydraConfig
+
+    return Path(HydraConfig.get().runtime.output_dir)
+
+
+def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceModel]:
+    """The authors' identified models to compare with: `auto` (authors_identified/*.yml beside the first data
+    file, none if absent), None, or a list of yml paths."""
+    if spec is None:
+        return {}
+    if spec == "auto":
+        folder = data_paths[0].parent / "authors_identified"
+        files = sorted(folder.glob("*.yml")) if folder.is_dir() else []
+    else:
+        files = [Path(p) for p in spec]
+    out: dict[str, ReferenceModel] = {}
+    for f in files:
+        p = load_author_model(f)
+        name = "authors_" + f.stem.replace("design_C.0_model_", "")
+        out[name] = ReferenceModel(torque=partial(author_torque, p), accel=partial(author_accel, p))
+    return out
+
+
+def _paths(cfg: DictConfig) -> list[Path]:
+    raw = cfg.data.path
+    items = list(raw) if OmegaConf.is_list(raw) else [raw]
+    return [Path(str(p)) for p in items]
+
+
+def run(cfg: DictConfig) -> dict[str, Any]:
+    """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content."""
+    opts = cfg.diagnose
+    unknown = [e for e in opts.effects if e not in CANDIDATE_EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
+    out = _output_dir(cfg)
+    plant = load_plant(cfg.system.mjcf)
+    paths = _paths(cfg)
+    columns = OmegaConf.to_container(cfg.data.columns) if cfg.data.get("columns") is not None else None
+    datasets = read_many(
+        paths,
+        plant,
+        columns=columns,  # type: ignore[arg-type]
+        repair=bool(cfg.data.get("repair", True)),
+        resample=bool(cfg.data.get("resample", True)),
+        max_speed=cfg.data.get("max_speed"),
+        min_samples=int(cfg.data.get("min_samples", 50)),
+    )
+    validation = cfg.data.get("validation")
+    split = split_train_validation(
+        datasets,
+        validation_fraction=float(cfg.data.get("validation_fraction", 0.3)),
+        validation=list(validation) if validation is not None else None,
+        min_samples=int(cfg.data.get("min_samples", 50)),
+    )
+    references = reference_models(
+        OmegaConf.to_container(opts.references) if OmegaConf.is_list(opts.references) else opts.references, paths
+    )
+    if references and plant.nv != 2:
+        references = {}
+    derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
+    result = diagnose(
+        plant,
+        split.train,
+        split.validation,
+        rng=np.random.default_rng(int(cfg.seed)),
+        effects=tuple(opts.effects),
+        derivatives=str(opts.derivatives),
+        derivative_options=derivative_options,
+        selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
+        window_s=float(opts.window_s),
+        references=references,
+        band_hz=float(opts.band_hz) if opts.band_hz is not None else None,
+        record_offsets=bool(opts.get("record_offsets", False)),
+    )
+    mjcf_name = f"{plant.name}_calibrated.xml"
+    payload = result.to_dict(mjcf_name=mjcf_name)
+    payload["seed"] = int(cfg.seed)
+    payload["split"] = split.describe()
+    payload["repairs"] = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
+    payload["config"] = OmegaConf.to_container(cfg, resolve=True)
+    _write_outputs(out, result, payload, mjcf_name, record=bool(opts.get("recording", True)))
+    print(_summary(payload))
+    print(f"outputs in {out}")
+    return to_jsonable(payload)
+
+
+def _write_outputs(out: Path, result: Diagnosis, payload: dict[str, Any], mjcf_name: str, *, record: bool) -> None:
+    """The recording, the calibrated MJCF, then diagnosis.json (its presence means a finished run)."""
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    steps: list[tuple[Path, Callable[[Path], None]]] = []
+    if record:
+        steps.append((out / "diagnosis.rrd", lambda p: _record(p, result)))
+    steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
+    steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
+    try:
+        for path, write in steps:
+            write(path)
+            written.append(path)
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
+
+
+def _record(path: Path, result: Diagnosis) -> None:
+    import rerun as rr
+
+    from harness.record import log_joint_series, save_recording
+
+    s = result.series
+
+    def fill(rec: rr.RecordingStream) -> None:
+        t, ts = s["time"], s["sim_time"]
+        for j, name in enumerate(s["joint_names"]):
+            for kind in ("measured", "nominal", "calibrated"):
+                log_joint_series(rec, f"joints/{name}/tau/{kind}", t, s[f"tau_{kind}"][:, j])
+            for kind in ("nominal", "calibrated"):
+                log_joint_series(
+                    rec, f"joints/{name}/residual/{kind}", t, s["tau_measured"][:, j] - s[f"tau_{kind}"][:, j]
+                )
+            log_joint_series(rec, f"joints/{name}/q/measured", t, s["q_measured"][:, j])
+            log_joint_series(rec, f"joints/{name}/q/simulated_nominal", ts, s["q_nominal"][:, j])
+            log_joint_series(rec, f"joints/{name}/q/simulated_calibrated", ts, s["q_calibrated"][:, j])
+        rec.log("findings", rr.TextDocument(_findings_markdown(result), media_type="text/markdown"), static=True)
+
+    save_recording(path, "sysid-diagnose", fill)
+
+
+def _findings_markdown(result: Diagnosis) -> str:
+    lines = [f"**verdict: {result.verdict}**", "", "| effect | where | value | std | unit |", "|---|---|---:|---:|---|"]
+    for f in result.findings:
+        lines.append(f"| {f.effect} | {f.target} | {f.value:.5g} | {f.std:.2g} | {f.unit} |")
+    lines += ["", "| model | joint | torque RMS [N m] | simulation error [rad] |", "|---|---|---:|---:|"]
+    for model, m in result.models.items():
+        for j, v in m["torque_rms"].items():
+            sim = m.get("simulation_error", {}).get(j)
+            lines.append(f"| {model} | {j} | {v:.4g} | {'-' if sim is None else f'{sim:.4g}'} |")
+    return "\n".join(lines)
+
+
+def _summary(payload: dict[str, Any]) -> str:
+    lines = [f"{payload['system']}: {payload['verdict']}"]
+    for f in payload["findings"]:
+        where = f.get("joint") or f.get("body") or ""
+        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {f['std'] or float('nan'):.2g} {f['unit']}")
+    for model, m in payload["models"].items():
+        tau = ", ".join(f"{j} {v:.4f}" for j, v in m["torque_rms"].items())
+        sim = ", ".join(f"{j} {v:.4f}" for j, v in m.get("simulation_error", {}).items())
+        lines.append(f"  {model:18s} torque RMS [N m]: {tau}; simulation error [rad]: {sim or '-'}")
+    return "\n".join(lines)
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="diagnose", version_base=None)
+def main(cfg: DictConfig) -> None:
+    """Console entry point `sysid-diagnose`."""
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

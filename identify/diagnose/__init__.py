@@ -1,0 +1,40 @@
+"""Model discrepancy: what the nominal MJCF gets wrong on measured data, the named cause, the calibrated
+model and the gain on held-out data (DESIGN.md question 4)."""
+
+from __future__ import annotations
+
+from identify.diagnose.authors import author_accel, author_torque, load_author_model
+from identify.diagnose.calibrate import Extension, calibrated_xml, frictionloss_mapping, predict_measured_torque
+from identify.diagnose.candidates import CANDIDATE_EFFECTS, Candidate, Signals, candidates
+from identify.diagnose.diagnosis import DEFAULT_EFFECTS, Diagnosis, Finding, ReferenceModel, diagnose
+from identify.diagnose.residuals import analyse_residual, noise_floor, whiteness
+from identify.diagnose.select import SelectionOptions, select_effects
+from identify.diagnose.simulation_error import SimulationError, simulation_error
+from identify.diagnose.torque import model_torque
+
+__all__ = [
+    "CANDIDATE_EFFECTS",
+    "DEFAULT_EFFECTS",
+    "Candidate",
+    "Diagnosis",
+    "Extension",
+    "Finding",
+    "ReferenceModel",
+    "SelectionOptions",
+    "Signals",
+    "SimulationError",
+    "analyse_residual",
+    "author_accel",
+    "author_torque",
+    "calibrated_xml",
+    "candidates",
+    "diagnose",
+    "frictionloss_mapping",
+    "load_author_model",
+    "model_torque",
+    "noise_floor",
+    "predict_measured_torque",
+    "select_effects",
+    "simulation_error",
+    "whiteness",
+]

@@ -1,0 +1,72 @@
+"""The DFKI double pendulum authors' identified models, evaluated as torque predictors and simulators.
+
+Their model (`dfki-ric-underactuated-lab/double_pendulum`, "UnderactuatedLecture" formulas), with q = 0
+hanging down and q2 relative to link 1:
+
+    M = [[I1 + I2 + m2 l1^2 + 2 m2 l1 r2 c2 + gr^2 Ir + Ir,   I2 + m2 l1 r2 c2 - gr Ir],
+         [I2 + m2 l1 r2 c2 - gr Ir,                           I2 + gr^2 Ir]]
+    C q' = [-2 m2 l1 r2 s2 q1' q2' - m2 l1 r2 s2 q2'^2,  m2 l1 r2 s2 q1'^2]
+    G = [-m1 g r1 s1 - m2 g (l1 s1 + r2 s12),  -m2 g r2 s12]
+    F = b q' + cf atan(100 q')
+    M q'' + C q' - G + F = tau
+
+I1, I2 are the link inertias about the joint axes; the parameters come from their yml files.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+__all__ = ["AUTHOR_KEYS", "author_accel", "author_torque", "load_author_model"]
+
+AUTHOR_KEYS = ("I1", "I2", "Ir", "b1", "b2", "cf1", "cf2", "g", "gr", "l1", "l2", "m1", "m2", "r1", "r2")
+
+
+def load_author_model(path: Path) -> dict[str, float]:
+    """The parameters of one of the authors' yml files.
+
+    Raises:
+        ValueError: a parameter of `AUTHOR_KEYS` is missing (the message names the file and the keys).
+    """
+    with open(path) as f:
+        raw = yaml.safe_load(f)
+    missing = [k for k in AUTHOR_KEYS if k not in raw]
+    if missing:
+        raise ValueError(f"{path}: missing parameters {missing}")
+    return {k: float(raw[k]) for k in AUTHOR_KEYS}
+
+
+def _terms(p: dict[str, float], q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mass matrices (N, 2, 2) and the rest C q' - G + F (N, 2)."""
+    c2, s2 = np.cos(q[:, 1]), np.sin(q[:, 1])
+    s1, s12 = np.sin(q[:, 0]), np.sin(q[:, 0] + q[:, 1])
+    h = p["m2"] * p["l1"] * p["r2"]
+    M = np.empty((len(q), 2, 2))
+    M[:, 0, 0] = p["I1"] + p["I2"] + p["m2"] * p["l1"] ** 2 + 2 * h * c2 + p["gr"] ** 2 * p["Ir"] + p["Ir"]
+    M[:, 0, 1] = M[:, 1, 0] = p["I2"] + h * c2 - p["gr"] * p["Ir"]
+    M[:, 1, 1] = p["I2"] + p["gr"] ** 2 * p["Ir"]
+    coriolis = np.column_stack([-2 * h * s2 * dq[:, 0] * dq[:, 1] - h * s2 * dq[:, 1] ** 2, h * s2 * dq[:, 0] ** 2])
+    gravity = np.column_stack(
+        [
+            -p["m1"] * p["g"] * p["r1"] * s1 - p["m2"] * p["g"] * (p["l1"] * s1 + p["r2"] * s12),
+            -p["m2"] * p["g"] * p["r2"] * s12,
+        ]
+    )
+    b, cf = np.array([p["b1"], p["b2"]]), np.array([p["cf1"], p["cf2"]])
+    friction = b * dq + cf * np.arctan(100 * dq)
+    return M, coriolis - gravity + friction
+
+
+def author_torque(p: dict[str, float], q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """(N, 2) joint torque [N m] of the authors' model at states q, dq, ddq (each (N, 2))."""
+    M, rest = _terms(p, q, dq)
+    return np.einsum("kij,kj->ki", M, ddq) + rest
+
+
+def author_accel(p: dict[str, float], q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """(N, 2) joint acceleration [rad/s^2] of the authors' model under joint torque tau (N, 2)."""
+    M, rest = _terms(p, q, dq)
+    return np.linalg.solve(M, (tau - rest)[:, :, None])[:, :, 0]

@@ -1,0 +1,412 @@
+"""The extended model: the nominal MJCF plus the effects found, written in MuJoCo's own attributes.
+
+Mapping (what each finding becomes in `<system>_calibrated.xml`):
+    armature, viscous_friction     joint `armature`, `damping` (added to the nominal values)
+    coulomb_friction               joint `frictionloss` = the fitted Coulomb torque Fc (1:1). MuJoCo makes it a
+                                   soft constraint: the friction force saturates at Fc when sliding and is
+                                   smaller below a transition speed; `frictionloss_mapping` measures how close
+                                   it comes to Fc sign(dq) along the validation motion.
+    joint_stiffness                joint `stiffness`, `springref`
+    payload, rigid_body            the bodies' `inertial` (mass, pos, fullinertia) from the corrected standard
+                                   parameters
+    joint_offset                   joint `ref` (the joint value of the model's pose): MuJoCo's qpos is then
+                                   the measured angle
+    torque_offset, torque_gain     the actuator becomes `general` with gainprm = 1/gain and biasprm =
+                                   -offset/gain: driven by the measured torque as ctrl, it applies the true one
+    time_delay                     no MuJoCo counterpart (the measured torque lags the applied one, so the
+                                   applied torque lies ahead of the log): a `numeric` sysid_time_delay_<joint>
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from scipy import optimize
+
+from envs.plant import Plant
+from identify.diagnose.select import LinearFit, Step
+from identify.diagnose.torque import model_torque
+from identify.estimators.physical import body_from_log_cholesky, log_cholesky_from_body
+from identify.model import rigid_body_regressor
+
+__all__ = [
+    "Extension",
+    "applied_from_measured",
+    "calibrated_xml",
+    "consistent_parameters",
+    "extension_from_fit",
+    "frictionloss_mapping",
+    "predict_measured_torque",
+]
+
+
+def _zeros(n: int) -> np.ndarray:
+    return np.zeros(n)
+
+
+@dataclass(frozen=True)
+class Extension:
+    """Corrections to the nominal model, each (nv,) unless stated.
+
+    Attributes:
+        armature, damping, frictionloss, stiffness: added to the MJCF's joint values [SI].
+        springref: new spring rest angles [rad] (the nominal ones where no stiffness was found).
+        theta_delta: (10 nv,) change of the standard inertial parameters.
+        joint_offset: reported minus true angle [rad].
+        torque_offset: reported torque at zero applied torque [N m].
+        torque_gain: reported over applied torque [1].
+        delay_s: the reported torque lags the applied one by this much [s].
+    """
+
+    armature: np.ndarray
+    damping: np.ndarray
+    frictionloss: np.ndarray
+    stiffness: np.ndarray
+    springref: np.ndarray
+    theta_delta: np.ndarray
+    joint_offset: np.ndarray
+    torque_offset: np.ndarray
+    torque_gain: np.ndarray
+    delay_s: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+    @classmethod
+    def none(cls, plant: Plant) -> Extension:
+        n = plant.nv
+        return cls(
+            armature=_zeros(n),
+            damping=_zeros(n),
+            frictionloss=_zeros(n),
+            stiffness=_zeros(n),
+            springref=plant.springref.copy(),
+            theta_delta=_zeros(10 * n),
+            joint_offset=_zeros(n),
+            torque_offset=_zeros(n),
+            torque_gain=np.ones(n),
+            delay_s=_zeros(n),
+        )
+
+
+def extension_from_fit(
+    plant: Plant,
+    steps: list[Step],
+    fit: LinearFit,
+    base_independent: np.ndarray,
+    *,
+    record_offsets: np.ndarray | None = None,
+) -> Extension:
+    """Turn the chosen candidates' coefficients into model corrections.
+
+    Args:
+        fit: coefficients of the nuisance columns (`record_offsets` of them), then of the steps' columns.
+        record_offsets: (n_records, nv) per-record torque offsets fitted as nuisance; their mean becomes the
+            model's torque offset.
+    """
+    ext = Extension.none(plant)
+    offset = 0
+    if record_offsets is not None and record_offsets.size:
+        ext.torque_offset[:] = record_offsets.mean(axis=0)
+        offset = int(np.count_nonzero(plant.actuated)) * len(record_offsets)
+    names = list(plant.joint_names)
+    for s in steps:
+        c = s.candidate
+        coef = fit.coef[offset : offset + len(s.kept)]
+        offset += len(s.kept)
+        full = np.zeros(len(c.parameter_names))
+        full[s.kept] = coef
+        if c.effect == "payload":
+            b = plant.body_names.index(c.target)
+            symbols = ("m", "MX", "MY", "MZ", "XX", "XY", "YY", "XZ", "YZ", "ZZ")
+            for name, value in zip(c.parameter_names, full, strict=True):
+                ext.theta_delta[10 * b + symbols.index(name[1 : -len(str(b + 1))])] += value
+            continue
+        if c.effect == "rigid_body":
+            ext.theta_delta[base_independent] += full
+            continue
+        j = names.index(c.target)
+        if c.effect == "joint_stiffness":
+            k_total = plant.stiffness[j] + full[0]
+            ext.stiffness[j] += full[0]
+            if k_total != 0:
+                ext.springref[j] = plant.springref[j] - full[1] / k_total
+            continue
+        target = {
+            "armature": ext.armature,
+            "viscous_friction": ext.damping,
+            "coulomb_friction": ext.frictionloss,
+            "joint_offset": ext.joint_offset,
+            "torque_offset": ext.torque_offset,
+            "time_delay": ext.delay_s,
+        }.get(c.effect)
+        if c.effect == "torque_gain":
+            ext.torque_gain[j] = 1.0 + full[0]
+        elif target is not None:
+            target[j] += full[0]
+    return ext
+
+
+def _inertial(theta: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass (3,) and inertia about it (3, 3) from 10 standard parameters at the body origin."""
+    m = float(theta[0])
+    c = theta[1:4] / m
+    xx, xy, yy, xz, yz, zz = theta[4:]
+    origin = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+    return m, c, origin - m * (np.dot(c, c) * np.eye(3) - np.outer(c, c))
+
+
+_MARGIN = 1e-7
+
+
+def _consistent(theta: np.ndarray) -> bool:
+    if theta[0] <= 0:
+        return False
+    w = np.sort(np.linalg.eigvalsh(_inertial(theta)[2]))
+    # an absolute margin [kg m^2]: the MJCF text keeps about six digits, and MuJoCo checks A + B >= C on them
+    return bool(w[0] > _MARGIN and w[0] + w[1] - w[2] > _MARGIN)
+
+
+def _physical(theta: np.ndarray, nominal: np.ndarray, free: np.ndarray, notes: list[str], body: str) -> np.ndarray:
+    """The corrected parameters if they are physically consistent; otherwise repaired where the data is blind.
+
+    Directions the data does not see (for a planar arm: the inertia about in-plane axes) may leave a body
+    with an inertia that is not positive definite; those entries (`free`, (10,) bool) are raised until
+    it is, which changes no predicted torque. Only if no such entry exists is the inertia about the centre
+    of mass itself repaired (a note says so).
+    """
+    if _consistent(theta):
+        return theta
+    fixed = theta.copy()
+    if fixed[0] <= 0:
+        fixed[0] = nominal[0]
+        notes.append(f"{body}: the fitted mass was not positive; nominal mass kept")
+    diagonal = [i for i in (4, 6, 9) if free[i]]
+    if diagonal:
+        raised, step = fixed.copy(), 1e-7
+        while not _consistent(raised) and step < 1.0:
+            raised[diagonal] = fixed[diagonal] + step
+            step *= 1.5
+        if _consistent(raised):
+            notes.append(
+                f"{body}: unobservable inertia entries raised by {step / 1.5:.3g} kg m^2 (physical consistency)"
+            )
+            return raised
+    m, c, inertia = _inertial(fixed)
+    w, v = np.linalg.eigh(inertia)
+    w = np.maximum(w, 2 * _MARGIN)
+    for _ in range(100):  # triangle inequality of principal moments
+        gap = 2 * _MARGIN + w.max() - (w.sum() - w.max())
+        if gap <= 0:
+            break
+        w = w + gap
+    inertia = v @ np.diag(w) @ v.T
+    notes.append(f"{body}: inertia about the centre of mass raised to be physically consistent (changes predictions)")
+    origin = inertia + m * (np.dot(c, c) * np.eye(3) - np.outer(c, c))
+    return np.array([m, *(m * c), origin[0, 0], origin[0, 1], origin[1, 1], origin[0, 2], origin[1, 2], origin[2, 2]])
+
+
+def consistent_parameters(plant: Plant, theta: np.ndarray, metric: np.ndarray, notes: list[str]) -> np.ndarray:
+    """Physically consistent standard parameters that predict the training torques like `theta` does.
+
+    A fit of base parameters can leave a body with no physical realisation (negative mass, an inertia
+    about the centre of mass that is not positive definite), which an MJCF cannot hold. Every body is then
+    written through the log-Cholesky factor of its pseudo-inertia (always consistent) and the factors are
+    chosen to minimise || metric (theta' - theta) || (the change of the predicted training torques), plus a
+    weak pull towards the nominal values that settles the directions the data do not see. A consistent
+    `theta` is returned unchanged.
+
+    Args:
+        plant: the nominal model (the anchor of the weak pull).
+        theta: (10 nv,) corrected standard parameters.
+        metric: (k, 10 nv) with ||metric d|| the (weighted) training torque change of a parameter change d
+            (the R factor of the stacked rigid-body regressor).
+        notes: receives what was changed.
+    """
+    if all(_consistent(theta[10 * b : 10 * b + 10]) for b in range(plant.nv)):
+        return theta
+    nv = plant.nv
+    mu = 1e-4 * float(np.linalg.norm(metric, 2))
+    x0 = np.concatenate(
+        [
+            log_cholesky_from_body(
+                theta[10 * b : 10 * b + 10] if theta[10 * b] > 0 else plant.theta[10 * b : 10 * b + 10]
+            )
+            for b in range(nv)
+        ]
+    )
+
+    def params(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([body_from_log_cholesky(x[10 * b : 10 * b + 10]) for b in range(nv)])
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        th = params(x)
+        return np.concatenate([metric @ (th - theta), mu * (th - plant.theta)])
+
+    fixed = params(optimize.least_squares(residual, x0, method="trf", max_nfev=2000).x)
+    change = float(np.linalg.norm(metric @ (fixed - theta)) / max(float(np.linalg.norm(metric @ theta)), 1e-300))
+    notes.append(
+        "the fitted inertials had no physical realisation; the nearest consistent ones are written "
+        f"(relative change of the predicted training torques {change:.2%})"
+    )
+    return fixed
+
+
+def _unobservable(plant: Plant) -> np.ndarray:
+    """(10 nv,) True for standard parameters that never change a joint torque (zero regressor column)."""
+    rng = np.random.default_rng(0)
+    n = 200
+    q = rng.uniform(-np.pi, np.pi, (n, plant.nv))
+    W = rigid_body_regressor(plant, q, rng.normal(0, 3, (n, plant.nv)), rng.normal(0, 10, (n, plant.nv)))
+    norms = np.linalg.norm(W.reshape(n * plant.nv, -1), axis=0)
+    return norms <= 1e-9 * max(float(norms.max()), 1e-300)
+
+
+def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = None, comment: str = "") -> str:
+    """The nominal MJCF with the corrections, as MJCF text (see the module docstring for the mapping).
+
+    Args:
+        plant: the nominal model.
+        ext: the corrections.
+        metric: (k, 10 nv) training-torque metric used to make corrected inertials physically consistent
+            with the least change of the predicted torques (see `consistent_parameters`); None repairs body by
+            body.
+        comment: a line for the file's header comment.
+    """
+    spec = mujoco.MjSpec.from_file(str(plant.path))
+    spec.compiler.balanceinertia = True  # a safety net for the six digits the MJCF text keeps
+    for j, name in enumerate(plant.joint_names):
+        joint = spec.joint(name)
+        joint.armature = float(plant.armature[j] + ext.armature[j])
+        damping = np.array(joint.damping, dtype=float)
+        damping[0] = plant.damping[j] + ext.damping[j]
+        joint.damping = damping
+        friction = plant.frictionloss[j] + ext.frictionloss[j]
+        if friction < 0:
+            ext.notes.append(f"{name}: fitted Coulomb friction {friction:.4g} N m < 0; frictionloss set to 0")
+        joint.frictionloss = float(max(friction, 0.0))
+        stiffness = np.array(joint.stiffness, dtype=float)
+        stiffness[0] = plant.stiffness[j] + ext.stiffness[j]
+        joint.stiffness = stiffness
+        joint.springref = float(ext.springref[j])
+        joint.ref = float(joint.ref + ext.joint_offset[j])
+    corrected = plant.theta + ext.theta_delta
+    if np.any(ext.theta_delta):
+        if metric is not None:
+            corrected = consistent_parameters(plant, corrected, metric, ext.notes)
+        free = _unobservable(plant)
+        corrected = np.concatenate(
+            [
+                _physical(
+                    corrected[10 * b : 10 * b + 10],
+                    plant.theta[10 * b : 10 * b + 10],
+                    free[10 * b : 10 * b + 10],
+                    ext.notes,
+                    n,
+                )
+                for b, n in enumerate(plant.body_names)
+            ]
+        )
+    for b, name in enumerate(plant.body_names):
+        theta = corrected[10 * b : 10 * b + 10]
+        if np.allclose(theta, plant.theta[10 * b : 10 * b + 10], rtol=0, atol=0):
+            continue
+        m, c, inertia = _inertial(theta)
+        body = spec.body(name)
+        body.mass, body.ipos, body.iquat = m, c, np.array([1.0, 0.0, 0.0, 0.0])
+        body.fullinertia = np.array(
+            [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+        )
+        body.explicitinertial = True
+    m = plant.mj_model
+    for a in range(m.nu):
+        j = int(m.jnt_dofadr[m.actuator_trnid[a, 0]])
+        gain, off = float(ext.torque_gain[j]), float(ext.torque_offset[j])
+        if gain == 1.0 and off == 0.0:
+            continue
+        act = spec.actuators[a]
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.gainprm[0] = float(m.actuator_gainprm[a, 0]) / gain
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.biasprm[0] = -off / (gain * float(m.actuator_gear[a, 0]))
+    for j, name in enumerate(plant.joint_names):
+        if ext.delay_s[j] != 0:
+            numeric = spec.add_numeric()
+            numeric.name = f"sysid_time_delay_{name}"
+            numeric.data = [float(ext.delay_s[j])]
+    spec.compile()
+    header = "<!-- Calibrated by sysid-diagnose (see identify/diagnose/calibrate.py for the mapping)."
+    text = header + ("\n     " + comment.replace("--", "-") if comment else "") + " -->\n"
+    return text + spec.to_xml()
+
+
+def predict_measured_torque(
+    calibrated: Plant, ext: Extension, time: np.ndarray, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
+) -> np.ndarray:
+    """(N, nv) torque the calibrated model says the sensor reports [N m]: gain, offset and delay applied exactly.
+
+    `calibrated` carries the joint offsets as `ref`, so q is the measured angle.
+    """
+    tau = model_torque(calibrated, q, dq, ddq)
+    out = tau.copy()
+    for j in range(calibrated.nv):
+        if ext.delay_s[j] != 0:
+            out[:, j] = np.interp(time - ext.delay_s[j], time, tau[:, j])
+    out = out * ext.torque_gain + ext.torque_offset
+    return np.where(calibrated.actuated, out, tau)
+
+
+def applied_from_measured(ext: Extension, time: np.ndarray, tau_measured: np.ndarray) -> np.ndarray:
+    """(N, nv) the measured torque advanced by the delay (the input of the calibrated MJCF's actuators)."""
+    out = tau_measured.copy()
+    for j in range(tau_measured.shape[1]):
+        if ext.delay_s[j] != 0:
+            out[:, j] = np.interp(time + ext.delay_s[j], time, tau_measured[:, j])
+    return out
+
+
+def frictionloss_mapping(
+    calibrated: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
+) -> dict[str, dict[str, float]]:
+    """How MuJoCo's constraint-based frictionloss compares with the ideal Coulomb term Fc sign(dq).
+
+    The friction force MuJoCo's inverse dynamics produces (with and without the joints' frictionloss, along the
+    given motion) is compared with Fc sign(dq) on every joint that has friction.
+
+    Returns:
+        Per joint: `frictionloss` Fc [N m], `rms_difference` [N m], `relative` (rms / Fc), `saturated_fraction`
+        (share of samples where MuJoCo's force is within 5 % of Fc) and `transition_speed` [rad/s] (the speed
+        below which MuJoCo's force falls under 90 % of Fc, a 90th percentile over such samples).
+    """
+    m = calibrated.mj_model
+    if not np.any(m.dof_frictionloss > 0):
+        return {}
+    m0 = mujoco.MjModel.from_xml_path(str(calibrated.path))
+    m0.dof_frictionloss[:] = 0.0
+    with_f, without = _inverse(m, q, dq, ddq), _inverse(m0, q, dq, ddq)
+    out: dict[str, dict[str, float]] = {}
+    for j, name in enumerate(calibrated.joint_names):
+        fc = float(m.dof_frictionloss[j])
+        if fc <= 0:
+            continue
+        f_mj = with_f[:, j] - without[:, j]
+        ideal = fc * np.sign(dq[:, j])
+        under = np.abs(f_mj) < 0.9 * fc
+        out[name] = {
+            "frictionloss": fc,
+            "rms_difference": float(np.sqrt(np.mean((f_mj - ideal) ** 2))),
+            "relative": float(np.sqrt(np.mean((f_mj - ideal) ** 2)) / fc),
+            "saturated_fraction": float(np.mean(np.abs(np.abs(f_mj) - fc) < 0.05 * fc)),
+            "transition_speed": float(np.percentile(np.abs(dq[under, j]), 90)) if np.any(under) else 0.0,
+        }
+    return out
+
+
+def _inverse(m: mujoco.MjModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    d = mujoco.MjData(m)
+    out = np.empty_like(q)
+    for k in range(len(q)):
+        d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
+        mujoco.mj_inverse(m, d)
+        out[k] = d.qfrc_inverse
+    return out

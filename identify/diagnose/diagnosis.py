@@ -1,0 +1,560 @@
+"""`diagnose`: what the simulation gets wrong on measured data, the named cause, the extended model, the gain.
+
+residual = measured torque - nominal MJCF torque (inverse dynamics along the measured motion)
+-> residual analysis (size against the noise floor, spectrum, correlations, worst window, whiteness)
+-> candidate effects chosen greedily on the training records (BIC + blocked cross-validation)
+-> extended model (calibrated MJCF + sensor corrections)
+-> validation records: torque RMS and windowed re-start simulation error of the nominal MJCF, the
+   rigid-body refit, the calibrated model and any reference models (such as the authors' own).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from envs.dataset import Dataset
+from envs.plant import Plant, plant_from_xml
+from identify.base import base_parameters
+from identify.derivatives import States, derive_states
+from identify.diagnose.calibrate import (
+    Extension,
+    applied_from_measured,
+    calibrated_xml,
+    extension_from_fit,
+    frictionloss_mapping,
+    predict_measured_torque,
+)
+from identify.diagnose.candidates import Candidate, Signals, candidates, signals, stack_signals
+from identify.diagnose.residuals import analyse_residual, noise_floor, whiteness
+from identify.diagnose.select import LinearFit, SelectionOptions, Step, fit_columns, select_effects
+from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
+from identify.diagnose.torque import model_torque, torque_jacobian_q
+from identify.model import ParameterModel
+
+__all__ = ["DEFAULT_EFFECTS", "Diagnosis", "Finding", "ReferenceModel", "diagnose"]
+
+DEFAULT_EFFECTS = (
+    "armature",
+    "coulomb_friction",
+    "joint_offset",
+    "joint_stiffness",
+    "payload",
+    "rigid_body",
+    "time_delay",
+    "torque_gain",
+    "torque_offset",
+    "viscous_friction",
+)
+
+
+@dataclass(frozen=True)
+class ReferenceModel:
+    """A model that is not an MJCF (such as the authors' identified ones), to compare on the same data.
+
+    Attributes:
+        torque: (q, dq, ddq) -> (N, nv) joint torque [N m].
+        accel: (q, dq, tau) -> (N, nv) joint acceleration [rad/s^2] (for the simulation error), or None.
+    """
+
+    torque: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    accel: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One named cause, most important first in a diagnosis.
+
+    Attributes:
+        effect: DESIGN.md's effect name (or `rigid_body`).
+        target: the joint (the body for `payload`; "" for `rigid_body`).
+        value, std: the effect's size and standard deviation in `unit`.
+        unit: SI unit of value.
+        counterpart: where it went in the calibrated MJCF.
+        evidence: the numbers it was chosen on (BIC drop, held-out MSE before/after, z).
+        torque_rms_after: validation torque RMS per joint with the findings up to this one [N m].
+        parameters: its coefficients: name, value, std.
+    """
+
+    effect: str
+    target: str
+    value: float
+    std: float
+    unit: str
+    counterpart: str
+    evidence: dict[str, float]
+    torque_rms_after: dict[str, float]
+    parameters: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        where = {"body": self.target} if self.effect == "payload" else {"joint": self.target or None}
+        return {
+            "effect": self.effect,
+            **where,
+            "value": _num(self.value),
+            "std": _num(self.std),
+            "unit": self.unit,
+            "counterpart": self.counterpart,
+            "evidence": {k: _num(v) for k, v in self.evidence.items()},
+            "torque_rms_after": self.torque_rms_after,
+            "parameters": self.parameters,
+        }
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The answer of `diagnose`; `to_dict()` is diagnosis.json.
+
+    Attributes:
+        system: plant name.
+        joint_names: (nv,) joints.
+        verdict: `explained`, `unexplained_structure` or `no_discrepancy`.
+        findings: most important first.
+        models: per model name (`nominal`, `rigid_body_refit`, `calibrated`, references):
+            {`torque_rms` {joint}, `simulation_error` {joint}} on the validation records.
+        residual: residual analysis of the nominal model on the training records.
+        whiteness: per joint, of the nominal and the calibrated residual on the validation records.
+        noise_floor: per joint torque noise std [N m].
+        frictionloss_mapping: per joint, MuJoCo's frictionloss against the fitted Coulomb term.
+        calibrated_xml: the calibrated MJCF text.
+        notes: anything the caller should know (clipped values, unidentifiable directions).
+        series: validation time series for the recording (not in to_dict).
+    """
+
+    system: str
+    joint_names: tuple[str, ...]
+    verdict: str
+    findings: list[Finding]
+    models: dict[str, dict[str, dict[str, float]]]
+    residual: dict[str, Any]
+    whiteness: dict[str, Any]
+    noise_floor: dict[str, float]
+    frictionloss_mapping: dict[str, dict[str, float]]
+    calibrated_xml: str
+    info: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    series: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self, *, mjcf_name: str | None = None) -> dict[str, Any]:
+        """diagnosis.json: the DESIGN.md contract plus the supporting analysis."""
+        nominal, calibrated = self.models["nominal"], self.models["calibrated"]
+        return {
+            "system": self.system,
+            "verdict": self.verdict,
+            "baseline": {"torque_rms": nominal["torque_rms"], "simulation_error": nominal["simulation_error"]},
+            "findings": [f.to_dict() for f in self.findings],
+            "extended": {
+                "torque_rms": calibrated["torque_rms"],
+                "mjcf": mjcf_name or f"{self.system}_calibrated.xml",
+                "simulation_error": {
+                    "nominal": nominal["simulation_error"],
+                    "extended": calibrated["simulation_error"],
+                },
+            },
+            "models": self.models,
+            "noise_floor": self.noise_floor,
+            "residual": self.residual,
+            "whiteness": self.whiteness,
+            "frictionloss_mapping": self.frictionloss_mapping,
+            "info": self.info,
+            "notes": self.notes,
+        }
+
+
+def _num(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _per_joint(names: tuple[str, ...], values: np.ndarray) -> dict[str, float]:
+    return {n: float(v) for n, v in zip(names, values, strict=True)}
+
+
+@dataclass(frozen=True)
+class _Record:
+    data: Dataset
+    states: States
+    signals: Signals
+
+
+def _records(
+    plant: Plant, datasets: Sequence[Dataset], method: str, options: dict[str, Any], band_hz: float | None
+) -> list[_Record]:
+    out = []
+    for i, data in enumerate(datasets):
+        if tuple(data.joint_names) != plant.joint_names:
+            raise ValueError(
+                f"{data.source}: joints {list(data.joint_names)} differ from the MJCF's {list(plant.joint_names)}"
+            )
+        states = derive_states(data, method, **options)
+        out.append(_Record(data, states, signals(plant, data, states, record=i, band_hz=band_hz)))
+    return out
+
+
+def _rows(rec: _Record) -> np.ndarray:
+    valid = np.flatnonzero(rec.states.valid)
+    return np.arange(valid[0], valid[-1] + 1)
+
+
+def _weights(plant: Plant, floor: np.ndarray) -> np.ndarray:
+    sigma = floor.copy()
+    act = np.asarray(plant.actuated, dtype=bool)
+    best = float(np.min(sigma[act])) if np.any(act) else 1.0
+    sigma[~act] = best
+    sigma = np.maximum(sigma, 1e-6 * max(float(sigma.max()), 1e-12) + 1e-12)
+    return 1.0 / sigma**2
+
+
+def _sim_error_mjcf(
+    model_plant: Plant, records: list[_Record], tau_in: Callable[[_Record], np.ndarray], window_s: float
+) -> np.ndarray:
+    stepper = mujoco_stepper(model_plant.mj_model)
+    sq, n = np.zeros(model_plant.nv), 0
+    for rec in records:
+        rows = _rows(rec)
+        err = simulation_error(
+            stepper, rec.data.time[rows], rec.states.q[rows], rec.states.dq[rows], tau_in(rec)[rows], window_s=window_s
+        )
+        sq += err.rms**2 * len(err.time)
+        n += len(err.time)
+    return np.sqrt(sq / max(n, 1))
+
+
+def _sim_series(model_plant: Plant, rec: _Record, tau: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
+    rows = _rows(rec)
+    err = simulation_error(
+        mujoco_stepper(model_plant.mj_model),
+        rec.data.time[rows],
+        rec.states.q[rows],
+        rec.states.dq[rows],
+        tau[rows],
+        window_s=window_s,
+    )
+    return err.time, err.q_simulated
+
+
+def _rms(pred: np.ndarray, meas: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean((meas - pred) ** 2, axis=0))
+
+
+def diagnose(
+    plant: Plant,
+    train: Sequence[Dataset],
+    validation: Sequence[Dataset],
+    *,
+    rng: np.random.Generator,
+    effects: Sequence[str] = DEFAULT_EFFECTS,
+    derivatives: str = "butterworth",
+    derivative_options: dict[str, Any] | None = None,
+    selection: SelectionOptions | None = None,
+    window_s: float = 0.25,
+    references: dict[str, ReferenceModel] | None = None,
+    band_hz: float | None = None,
+    record_offsets: bool = False,
+) -> Diagnosis:
+    """Diagnose the nominal MJCF of `plant` on measured records.
+
+    Args:
+        plant: the nominal model.
+        train: records the effects are chosen and fitted on.
+        validation: records the fit never sees (the gain is measured on them).
+        rng: randomness (generic states for the identifiability of candidate columns).
+        effects: candidate effect names (see `candidates.CANDIDATE_EFFECTS`).
+        derivatives, derivative_options: how q is filtered and differentiated (`identify.derivatives`).
+        selection: thresholds of the selection.
+        window_s: re-start window of the simulation error [s].
+        references: other models to evaluate on the validation records (e.g. the authors' identified ones).
+        band_hz: parallel low-pass of measured and model torques before they are compared (see `Signals`);
+            None compares them unfiltered.
+        record_offsets: fit a torque offset per training record and actuated joint as a nuisance (sensors
+            re-zeroed at every power-up drift between recordings); the calibrated model uses their mean.
+            Needs two or more training records; the torque_offset candidate is then never named.
+
+    Returns:
+        The diagnosis (see `Diagnosis`).
+    """
+    if not train or not validation:
+        raise ValueError("diagnose needs at least one training and one validation record")
+    selection = selection or SelectionOptions()
+    options = dict(derivative_options or {})
+    tr = _records(plant, train, derivatives, options, band_hz)
+    va = _records(plant, validation, derivatives, options, band_hz)
+    s_tr = stack_signals([r.signals for r in tr])
+    s_va = stack_signals([r.signals for r in va])
+    names = plant.joint_names
+    floor = np.median([noise_floor(r.data.tau) for r in tr], axis=0) * plant.actuated
+    weights = _weights(plant, floor)
+
+    pool = candidates(plant, list(effects), rng)
+    nuisance = (
+        _record_offset_columns(s_tr) if record_offsets and len(tr) > 1 else np.zeros((s_tr.n_samples, plant.nv, 0))
+    )
+    m = nuisance.shape[2]
+    steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
+    X, fit = _final_fit(plant, steps, X, s_tr, weights, m)
+    offsets_by_record = fit.coef[:m].reshape(len(tr), -1) if m else np.zeros((0, plant.nv))
+    if m:
+        full = np.zeros((len(tr), plant.nv))
+        full[:, plant.actuated] = offsets_by_record
+        offsets_by_record = full
+    base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
+    sw = np.sqrt(weights)
+    metric: np.ndarray = np.linalg.qr(  # type: ignore[assignment]
+        (s_tr.smooth(s_tr.regressor) * sw[None, :, None]).reshape(-1, s_tr.regressor.shape[2]), mode="r"
+    )
+    findings = _findings(steps, fit, X, s_tr, s_va, weights, names, m, offsets_by_record)
+    ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m else None)
+    refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx)
+
+    with tempfile.TemporaryDirectory(prefix="sysid_diagnose_") as tmp:
+        xml = calibrated_xml(
+            plant,
+            ext,
+            metric=metric,
+            comment=", ".join(f"{f.effect} {f.target}".strip() for f in findings) or "no effect found",
+        )
+        calibrated = plant_from_xml(xml, f"{plant.name}_calibrated", Path(tmp))
+        refit = plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", Path(tmp))
+        models: dict[str, dict[str, dict[str, float]]] = {}
+        preds: dict[str, np.ndarray] = {}
+
+        def measured(rec: _Record) -> np.ndarray:
+            return rec.data.tau
+
+        def advanced(rec: _Record) -> np.ndarray:
+            return applied_from_measured(ext, rec.data.time, rec.data.tau)
+
+        preds["nominal"] = s_va.tau_nominal
+        sim_nom = _sim_error_mjcf(plant, va, measured, window_s)
+        preds["rigid_body_refit"] = predict_measured_torque(refit, refit_ext, s_va.time, s_va.q, s_va.dq, s_va.ddq)
+        sim_refit = _sim_error_mjcf(refit, va, measured, window_s)
+        preds["calibrated"] = _predict_records(calibrated, ext, va)
+        sim_cal = _sim_error_mjcf(calibrated, va, advanced, window_s)
+        sims = {"nominal": sim_nom, "rigid_body_refit": sim_refit, "calibrated": sim_cal}
+        for name, ref in (references or {}).items():
+            preds[name] = ref.torque(s_va.q, s_va.dq, s_va.ddq)
+            if ref.accel is not None:
+                sims[name] = _sim_error_ode(ref, va, window_s)
+        for name, pred in preds.items():
+            models[name] = {"torque_rms": _per_joint(names, _rms(s_va.smooth(pred), s_va.smooth(s_va.tau)))}
+            if name in sims:
+                models[name]["simulation_error"] = _per_joint(names, sims[name])
+        friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
+        series = _series(plant, calibrated, ext, va[0], preds, window_s)
+
+    white_nom = whiteness(s_va.residual, floor, 1.0 / va[0].data.dt)
+    white_cal = whiteness(s_va.smooth(s_va.tau - preds["calibrated"]), floor, 1.0 / va[0].data.dt)
+    if findings:
+        verdict = "explained"
+    elif any(w["structured"] for w in white_nom):
+        verdict = "unexplained_structure"
+    else:
+        verdict = "no_discrepancy"
+    return Diagnosis(
+        system=plant.name,
+        joint_names=names,
+        verdict=verdict,
+        findings=findings,
+        models=models,
+        residual=analyse_residual(s_tr, names, floor),
+        whiteness={
+            "nominal": dict(zip(names, white_nom, strict=True)),
+            "calibrated": dict(zip(names, white_cal, strict=True)),
+        },
+        noise_floor=_per_joint(names, floor),
+        frictionloss_mapping=friction,
+        calibrated_xml=xml,
+        info={
+            "train": [r.data.source for r in tr],
+            "validation": [r.data.source for r in va],
+            "train_samples": int(s_tr.n_samples),
+            "validation_samples": int(s_va.n_samples),
+            "candidates": [c.key for c in pool],
+            "selection": selection.__dict__,
+            "derivatives": {"method": derivatives, **options},
+            "window_s": window_s,
+            "band_hz": band_hz,
+            "record_offsets": [
+                {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
+            ],
+        },
+        notes=list(ext.notes),
+        series=series,
+    )
+
+
+def _predict_records(calibrated: Plant, ext: Extension, records: list[_Record]) -> np.ndarray:
+    """Calibrated measured-torque prediction record by record (the delay shifts within a record)."""
+    return np.concatenate(
+        [
+            predict_measured_torque(calibrated, ext, r.signals.time, r.signals.q, r.signals.dq, r.signals.ddq)
+            for r in records
+        ]
+    )
+
+
+def _sim_error_ode(ref: ReferenceModel, records: list[_Record], window_s: float) -> np.ndarray:
+    assert ref.accel is not None
+    stepper = ode_stepper(ref.accel)
+    nv = records[0].data.q.shape[1]
+    sq, n = np.zeros(nv), 0
+    for rec in records:
+        rows = _rows(rec)
+        err = simulation_error(
+            stepper, rec.data.time[rows], rec.states.q[rows], rec.states.dq[rows], rec.data.tau[rows], window_s=window_s
+        )
+        sq += err.rms**2 * len(err.time)
+        n += len(err.time)
+    return np.sqrt(sq / max(n, 1))
+
+
+def _record_offset_columns(s: Signals) -> np.ndarray:
+    """(N, nv, records x actuated joints) a constant torque offset per record and actuated joint."""
+    records, joints = np.unique(s.record), np.flatnonzero(s.actuated)
+    out = np.zeros((s.n_samples, len(s.actuated), len(records) * len(joints)))
+    for i, r in enumerate(records):
+        for k, j in enumerate(joints):
+            out[s.record == r, j, i * len(joints) + k] = 1.0
+    return out
+
+
+def _final_fit(
+    plant: Plant, steps: list[Step], X: np.ndarray, s: Signals, weights: np.ndarray, n_nuisance: int = 0
+) -> tuple[np.ndarray, LinearFit]:
+    """Joint fit of the chosen columns, with joint offsets and torque gains made exact.
+
+    The selection linearises both; here they are iterated to a fixed point. A joint offset o re-evaluates
+    the nominal torque at q - o (Gauss-Newton on the offset); a gain multiplies the whole true torque, not
+    only the nominal one, so its column is re-made from the nominal torque plus the other fitted effects.
+    At the fixed point measured = gain (nominal(q - offset) + effects) + torque offset holds exactly, as
+    in the calibrated model.
+    """
+    fit = fit_columns(X, s.residual, weights)
+    start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
+    offsets = [
+        (int(start[i]), plant.joint_names.index(st.candidate.target))
+        for i, st in enumerate(steps)
+        if st.candidate.effect == "joint_offset"
+    ]
+    gains = [int(start[i]) for i, st in enumerate(steps) if st.candidate.effect == "torque_gain"]
+    if not offsets and not gains:
+        return X, fit
+    X, shift, nominal = X.copy(), np.zeros(plant.nv), s.tau_nominal
+    others = [c for c in range(X.shape[2]) if c not in gains and c not in {c for c, _ in offsets}]
+    for _ in range(20):
+        previous = fit.coef.copy()
+        if offsets:
+            for c, j in offsets:
+                shift[j] += fit.coef[c]
+                previous[c] = 0.0
+            q = s.q - shift
+            nominal = model_torque(plant, q, s.dq, s.ddq)
+            jac = torque_jacobian_q(plant, q, s.dq, s.ddq)
+            for c, j in offsets:
+                X[:, :, c] = s.smooth(-jac[:, :, j])
+        if gains:
+            effects = np.einsum("knp,p->kn", X[:, :, others], fit.coef[others])
+            total = s.smooth(nominal) + effects
+            for c in gains:
+                row = np.flatnonzero(np.any(X[:, :, c] != 0, axis=0))
+                X[:, row, c] = total[:, row]
+        fit = fit_columns(X, s.smooth(s.tau - nominal), weights)
+        if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
+            break
+    coef = fit.coef.copy()
+    for c, j in offsets:
+        coef[c] += shift[j]
+    return X, LinearFit(coef, fit.cov, fit.sigma)
+
+
+def _rigid_refit(
+    plant: Plant, pool: list[Candidate], s: Signals, weights: np.ndarray, base_idx: np.ndarray
+) -> Extension:
+    """The rigid-body parameters re-identified alone (no other effect), as an extension of the nominal model."""
+    rb = [c for c in pool if c.effect == "rigid_body"]
+    if not rb:
+        return Extension.none(plant)
+    X = s.columns(rb[0])
+    fit = fit_columns(X, s.residual, weights)
+    step = Step(rb[0], np.arange(X.shape[2]), 0.0, 0.0, 0.0)
+    return extension_from_fit(plant, [step], fit, base_idx)
+
+
+def _findings(
+    steps: list[Step],
+    fit: Any,
+    X: np.ndarray,
+    s_tr: Signals,
+    s_va: Signals,
+    weights: np.ndarray,
+    names: tuple[str, ...],
+    n_nuisance: int = 0,
+    record_offsets: np.ndarray | None = None,
+) -> list[Finding]:
+    out: list[Finding] = []
+    offset = n_nuisance
+    cols_va = [s_va.columns(s.candidate)[:, :, s.kept] for s in steps]
+    mean_offset = record_offsets.mean(axis=0) if record_offsets is not None and record_offsets.size else 0.0
+    for i, s in enumerate(steps):
+        k = len(s.kept)
+        sl = slice(offset, offset + k)
+        value, std = s.candidate.value(fit.coef[sl], fit.cov[sl, sl], X[:, :, sl])
+        # the validation RMS with the findings up to this one, refitted on the training rows
+        partial = fit_columns(X[:, :, : offset + k], s_tr.residual, weights)
+        pred = (
+            s_va.smooth(s_va.tau_nominal)
+            + mean_offset
+            + np.einsum("knp,p->kn", np.concatenate(cols_va[: i + 1], axis=2), partial.coef[n_nuisance:])
+        )
+        pnames = [s.candidate.parameter_names[j] for j in s.kept]
+        stds = np.sqrt(np.clip(np.diag(fit.cov)[sl], 0, None))
+        null = 1.0 if s.candidate.effect == "torque_gain" else 0.0
+        out.append(
+            Finding(
+                effect=s.candidate.effect,
+                target=s.candidate.target,
+                value=value,
+                std=std,
+                unit=s.candidate.unit,
+                counterpart=s.candidate.counterpart,
+                evidence={
+                    "delta_bic": s.delta_bic,
+                    "heldout_mse_before": s.cv_mse_before,
+                    "heldout_mse_after": s.cv_mse_after,
+                    "heldout_gain": 1.0 - s.cv_mse_after / s.cv_mse_before if s.cv_mse_before > 0 else 0.0,
+                    "z": (value - null) / std if std > 0 else float("inf"),
+                },
+                torque_rms_after=_per_joint(names, _rms(pred, s_va.smooth(s_va.tau))),
+                parameters=[
+                    {"name": n, "value": float(v), "std": float(e)}
+                    for n, v, e in zip(pnames, fit.coef[sl], stds, strict=True)
+                ],
+            )
+        )
+        offset += k
+    return out
+
+
+def _series(
+    plant: Plant, calibrated: Plant, ext: Extension, rec: _Record, preds: dict[str, np.ndarray], window_s: float
+) -> dict[str, Any]:
+    """Time series of the first validation record for the recording."""
+    n = rec.signals.n_samples
+    rows = _rows(rec)
+    t_sim, q_nom = _sim_series(plant, rec, rec.data.tau, window_s)
+    _, q_cal = _sim_series(calibrated, rec, applied_from_measured(ext, rec.data.time, rec.data.tau), window_s)
+    return {
+        "time": rec.signals.time,
+        "joint_names": plant.joint_names,
+        "tau_measured": rec.signals.tau,
+        "tau_nominal": preds["nominal"][:n],
+        "tau_calibrated": preds["calibrated"][:n],
+        "q_measured": rec.states.q[rows],
+        "sim_time": t_sim,
+        "q_nominal": q_nom,
+        "q_calibrated": q_cal,
+    }

@@ -1,0 +1,129 @@
+"""What the residual torque looks like: its size against the noise floor, its spectrum, what it correlates
+with, where in the motion it is worst, and whether it is white.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy import signal, stats
+
+from identify.diagnose.candidates import Signals
+
+__all__ = ["analyse_residual", "noise_floor", "whiteness"]
+
+
+def noise_floor(tau: np.ndarray) -> np.ndarray:
+    """(nv,) std of the white part of measured torque (N, nv) [N m], from its third differences.
+
+    The third difference of white noise of std s has variance 20 s^2, while a smooth motion's torque
+    (a few Hz sampled at hundreds of Hz) all but vanishes in it; quantisation counts as noise.
+    """
+    d3 = np.diff(tau, 3, axis=0)
+    mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0) * 1.4826
+    return np.minimum(np.std(d3, axis=0), np.where(mad > 0, mad, np.inf)) / np.sqrt(20.0)
+
+
+def whiteness(
+    residual: np.ndarray,
+    floor: np.ndarray,
+    sample_rate_hz: float,
+    *,
+    band_hz: float = 10.0,
+    lags: int = 20,
+    alpha: float = 0.01,
+    min_structure: float = 0.5,
+) -> list[dict[str, float | bool]]:
+    """Per joint: is there structure in the residual beyond white noise?
+
+    The residual is low-passed at `band_hz` (where model errors live) and decimated to 2 band_hz, where
+    white noise would give uncorrelated samples of variance floor^2 (2 band_hz / fs). Structured means
+    both a Ljung-Box test rejects whiteness at level `alpha` and the low-band RMS beyond the noise's share
+    exceeds `min_structure` times the noise floor (an effect size, so that huge records do not flag
+    harmless colour).
+
+    Args:
+        residual: (N, nv) torque residual [N m].
+        floor: (nv,) noise floor [N m].
+        sample_rate_hz: sampling rate [Hz].
+
+    Returns:
+        One dict per joint: `ljung_box_p`, `structured_rms` [N m], `structured` (bool).
+    """
+    band = min(band_hz, 0.45 * sample_rate_hz)
+    sos = signal.butter(4, band, fs=sample_rate_hz, output="sos")
+    low = signal.sosfiltfilt(sos, residual - residual.mean(axis=0), axis=0)
+    step = max(int(sample_rate_hz / (2 * band)), 1)
+    out = []
+    for j in range(residual.shape[1]):
+        x = low[::step, j]
+        n = len(x)
+        h = min(lags, n // 4)
+        acf = np.array([np.sum(x[k:] * x[: n - k]) for k in range(h + 1)]) / max(float(np.sum(x * x)), 1e-300)
+        q_stat = n * (n + 2) * float(np.sum(acf[1:] ** 2 / (n - np.arange(1, h + 1))))
+        p = float(stats.chi2.sf(q_stat, h)) if h > 0 else 1.0
+        excess = float(np.var(low[:, j]) - floor[j] ** 2 * min(2 * band / sample_rate_hz, 1.0))
+        srms = float(np.sqrt(max(excess, 0.0)))
+        structured = bool(p < alpha and srms > min_structure * max(float(floor[j]), 1e-12))
+        out.append({"ljung_box_p": p, "structured_rms": srms, "structured": structured})
+    return out
+
+
+def analyse_residual(
+    s: Signals, joint_names: tuple[str, ...], floor: np.ndarray, *, window_s: float = 0.25
+) -> dict[str, Any]:
+    """Per joint: RMS against the noise floor, dominant frequencies, correlations with the motion and with
+    time-shifted nominal torque, and the window of the motion where the model is worst."""
+    r = s.residual
+    fs = 1.0 / float(np.median(np.diff(s.time)))
+    out: dict[str, Any] = {}
+    for j, name in enumerate(joint_names):
+        x = r[:, j] - r[:, j].mean()
+        f, pxx = signal.welch(x, fs=fs, nperseg=min(1024, len(x)))
+        top = np.argsort(pxx)[::-1][:3]
+        probes = {"q": s.q[:, j], "dq": s.dq[:, j], "sign_dq": np.sign(s.dq[:, j]), "ddq": s.ddq[:, j]}
+        corr = {k: _corr(r[:, j], v) for k, v in probes.items()}
+        corr["tau_nominal"] = _corr(r[:, j], s.tau_nominal[:, j])
+        lag_s, lag_corr = _best_lag(r[:, j], s.dtau_dt[:, j], s.tau_nominal[:, j], fs)
+        win = max(int(window_s * fs), 1)
+        power = np.convolve(r[:, j] ** 2, np.ones(win) / win, mode="valid")
+        k = int(np.argmax(power))
+        out[name] = {
+            "rms": float(np.sqrt(np.mean(r[:, j] ** 2))),
+            "mean": float(np.mean(r[:, j])),
+            "noise_floor": float(floor[j]),
+            "rms_over_noise": float(np.sqrt(np.mean(r[:, j] ** 2)) / max(float(floor[j]), 1e-12)),
+            "dominant_hz": [float(f[i]) for i in top],
+            "correlation": corr,
+            "shifted_torque": {"lag_s": lag_s, "correlation": lag_corr},
+            "worst_window": {
+                "t_start": float(s.time[k]),
+                "rms": float(np.sqrt(power[k])),
+                "mean_abs_dq": float(np.mean(np.abs(s.dq[k : k + win, j]))),
+                "mean_q": float(np.mean(s.q[k : k + win, j])),
+            },
+        }
+    return out
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    sa, sb = float(np.std(a)), float(np.std(b))
+    if sa == 0 or sb == 0:
+        return 0.0
+    return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb))
+
+
+def _best_lag(
+    r: np.ndarray, dtau: np.ndarray, tau: np.ndarray, fs: float, max_lag_s: float = 0.05
+) -> tuple[float, float]:
+    """The shift d (|d| <= max_lag_s) for which tau(t - d) - tau(t) best correlates with the residual."""
+    best = (0.0, 0.0)
+    for k in range(-int(max_lag_s * fs), int(max_lag_s * fs) + 1):
+        if k == 0:
+            continue
+        shifted = np.roll(tau, k) - tau
+        c = _corr(r[abs(k) : -abs(k)], shifted[abs(k) : -abs(k)])
+        if abs(c) > abs(best[1]):
+            best = (k / fs, c)
+    return best

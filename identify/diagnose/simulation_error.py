@@ -1,0 +1,126 @@
+"""Simulation error: re-start the simulation from the measured state every window and compare the angles.
+
+A model that is right predicts the motion, not only the torque. Every `window_s` the simulator is reset to
+the (filtered) measured state and driven open loop by the measured torque (zero-order hold between
+samples, mapped back to the applied torque by the sensor model) for one window; the error is the RMS over
+all windows of simulated minus measured joint angles. MuJoCo models run batched through `mujoco.rollout`;
+other models (the authors' closed-form ones) pass a forward-dynamics function.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+__all__ = ["SimulationError", "mujoco_stepper", "ode_stepper", "simulation_error"]
+
+# (q0 (B, nv), dq0 (B, nv), tau (B, n_step, nv), dt) -> q (B, n_step, nv) after each step
+Stepper = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
+
+
+@dataclass(frozen=True)
+class SimulationError:
+    """Windowed re-start simulation against the measurement.
+
+    Attributes:
+        rms: (nv,) RMS of simulated minus measured angle over every window [rad].
+        time: (M,) sample times compared [s].
+        q_simulated: (M, nv) simulated angles at those times [rad] (restarting every window).
+        window_s: window length [s].
+    """
+
+    rms: np.ndarray
+    time: np.ndarray
+    q_simulated: np.ndarray
+    window_s: float
+
+
+def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
+    """A batched stepper over `mujoco.rollout` for an MJCF whose actuators drive joints directly, and its dt."""
+    act_joint = np.array([int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) for a in range(model.nu)], dtype=int)
+    gear = model.actuator_gear[:, 0].copy()
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    data = mujoco.MjData(model)
+    size = mujoco.mj_stateSize(model, spec)
+
+    def step(q0: np.ndarray, dq0: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
+        states = np.empty((len(q0), size))
+        for b in range(len(q0)):
+            mujoco.mj_resetData(model, data)
+            data.qpos[:], data.qvel[:] = q0[b], dq0[b]
+            mujoco.mj_getState(model, data, states[b], spec)
+        ctrl = tau[:, :, act_joint] / gear
+        # MuJoCo's affine actuators (a calibrated torque sensor) map the measured torque; see calibrate.py
+        out, _ = rollout.rollout(model, data, states, ctrl)
+        return out[:, :, 1 : 1 + model.nq]
+
+    return step, float(model.opt.timestep)
+
+
+def ode_stepper(
+    accel: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray], dt: float = 5e-4
+) -> tuple[Stepper, float]:
+    """A batched semi-implicit Euler stepper for `accel(q, dq, tau) -> ddq` (each (B, nv))."""
+
+    def step(q0: np.ndarray, dq0: np.ndarray, tau: np.ndarray, h: float) -> np.ndarray:
+        q, dq = q0.copy(), dq0.copy()
+        out = np.empty(tau.shape)
+        for i in range(tau.shape[1]):
+            dq = dq + h * accel(q, dq, tau[:, i])
+            q = q + h * dq
+            out[:, i] = q
+        return out
+
+    return step, dt
+
+
+def simulation_error(
+    stepper: tuple[Stepper, float],
+    time: np.ndarray,
+    q: np.ndarray,
+    dq: np.ndarray,
+    tau_applied: np.ndarray,
+    *,
+    window_s: float = 0.25,
+) -> SimulationError:
+    """Re-start every `window_s` from (q, dq) and drive by `tau_applied`; compare with q.
+
+    Args:
+        stepper: (batched stepper, physics timestep [s]).
+        time: (N,) sample times [s] of one record.
+        q, dq: (N, nv) measured (filtered) angles [rad] and velocities [rad/s]: the start states and the
+            reference the simulation is compared with.
+        tau_applied: (N, nv) joint torque applied over [t_k, t_k+1) [N m].
+        window_s: window length [s].
+    """
+    step, dt = stepper
+    if window_s <= 0:
+        raise ValueError(f"window_s must be > 0, got {window_s}")
+    n_step = max(int(round(window_s / dt)), 1)
+    starts = []
+    k = 0
+    while k < len(time) and time[k] + n_step * dt <= time[-1]:
+        starts.append(k)
+        k = int(np.searchsorted(time, time[k] + n_step * dt, side="left"))
+    if not starts:
+        raise ValueError(f"the record ({time[-1] - time[0]:.3f} s) is shorter than one {window_s} s window")
+    idx = np.array(starts)
+    t_phys = time[idx][:, None] + dt * np.arange(n_step)[None, :]
+    sample = np.clip(np.searchsorted(time, t_phys + 1e-12, side="right") - 1, 0, len(time) - 1)
+    q_sim = step(q[idx], dq[idx], tau_applied[sample], dt)  # (B, n_step, nv): after steps 1..n_step
+    t_after = t_phys + dt
+    times, sims, refs = [], [], []
+    for b, k0 in enumerate(idx):
+        k1 = int(np.searchsorted(time, t_after[b, -1], side="right"))
+        ks = np.arange(k0 + 1, k1)
+        sim = np.column_stack([np.interp(time[ks], t_after[b], q_sim[b, :, j]) for j in range(q.shape[1])])
+        times.append(time[ks])
+        sims.append(sim)
+        refs.append(q[ks])
+    t_all, s_all, r_all = np.concatenate(times), np.concatenate(sims), np.concatenate(refs)
+    rms = np.sqrt(np.mean((s_all - r_all) ** 2, axis=0))
+    return SimulationError(rms=rms, time=t_all, q_simulated=s_all, window_s=float(window_s))

@@ -1,0 +1,236 @@
+"""The diagnosis names hidden effects: data simulated in MuJoCo with one effect (or two) hidden in the MJCF
+or the sensor model, diagnosed against the clean MJCF, on a held-out trajectory.
+
+Done when (issue 5): the effect is named first, its value lies within 3 std and 20 % of the truth, and the
+validation torque RMS drops by at least half (on the joint the effect disturbs most); clean data give
+`no_discrepancy` over ten seeds; an effect outside the candidate library gives `unexplained_structure`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from envs.dataset import Dataset
+from envs.effects import HiddenEffect, apply_effects
+from envs.plant import Plant, load_plant, plant_from_xml
+from envs.sensors import SensorModel
+from envs.simulate import simulate_open_loop, simulate_tracking
+from excitation.designs import default_design, random_design
+from excitation.limits import limits_for
+from identify.diagnose import Diagnosis, diagnose
+
+# Realistic sensors as in conf/system/*.yaml and conf/noise/default.yaml.
+_ENCODER = {"sigma_q": 1.7e-5, "q_resolution": 2.4e-5}
+SENSORS = {
+    "two_link": SensorModel(500.0, sigma_tau=np.array([0.02, 0.02]), tau_resolution=0.00586, **_ENCODER),
+    "pendulum": SensorModel(500.0, sigma_tau=np.array([0.01]), tau_resolution=0.001, **_ENCODER),
+    "wheel_pendulum": SensorModel(500.0, sigma_tau=np.array([0.0, 0.003]), tau_resolution=0.0002, **_ENCODER),
+}
+LIMITS = {
+    "two_link": {"velocity": 8.0, "acceleration": 60.0, "range_margin": 0.05},
+    "pendulum": {"velocity": 8.0, "acceleration": 60.0, "range_margin": 0.05},
+    "wheel_pendulum": {"velocity": [10.0, 150.0], "acceleration": [200.0, 2000.0], "range_margin": 0.1},
+}
+
+
+def _finer(plant: Plant, timestep: float, directory: Path) -> Plant:
+    """The same MJCF with a smaller physics step."""
+    spec = mujoco.MjSpec.from_file(str(plant.path))
+    spec.option.timestep = timestep
+    return plant_from_xml(spec.to_xml(), f"{plant.name}_fine", directory)
+
+
+def simulate(
+    system: str, effects: list[HiddenEffect], seed: int, directory: Path, *, timestep: float | None = None
+) -> tuple[Plant, Dataset, Dataset]:
+    """Nominal plant, a 10 s training record (default design) and a 5 s validation record (random design)."""
+    plant = load_plant(system)
+    torque_driven = not bool(np.all(plant.actuated))
+    limits = limits_for(plant, torque_margin=0.9, **LIMITS[system])  # type: ignore[arg-type]
+    hidden, sensor = apply_effects(plant, effects, sensor=SENSORS[system], directory=directory)
+    if timestep is not None:
+        hidden = _finer(hidden, timestep, directory)
+    rng_train, rng_val, rng_design = np.random.default_rng(seed).spawn(3)
+    designs = [
+        default_design(plant, limits, harmonics=5, base_freq_hz=0.2, torque_driven=torque_driven),
+        random_design(plant, limits, harmonics=5, base_freq_hz=0.2, rng=rng_design, torque_driven=torque_driven),
+    ]
+    out = []
+    for design, rng, duration in zip(designs, (rng_train, rng_val), (10.0, 5.0), strict=True):
+        if torque_driven:
+            out.append(simulate_open_loop(hidden, design.torque, duration_s=duration, sensor=sensor, rng=rng))
+        else:
+            out.append(simulate_tracking(hidden, design, duration_s=duration, sensor=sensor, rng=rng, nominal=plant))
+    return plant, out[0], out[1]
+
+
+def run_diagnosis(plant: Plant, train: Dataset, validation: Dataset, **kwargs) -> Diagnosis:  # type: ignore[no-untyped-def]
+    return diagnose(
+        plant, [train], [validation], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}, **kwargs
+    )
+
+
+def _check_found(dg: Diagnosis, truth: HiddenEffect) -> None:
+    """Named first, within 3 std and 20 % of the truth (for a gain: of its departure from 1)."""
+    assert dg.verdict == "explained"
+    first = dg.findings[0]
+    assert first.effect == truth.effect, [f.to_dict() for f in dg.findings]
+    named = [
+        f
+        for f in dg.findings
+        if f.effect == truth.effect and (truth.effect == "time_delay" or f.target == truth.target)
+    ]
+    assert named, [f.to_dict() for f in dg.findings]
+    size = abs(truth.value - 1.0) if truth.effect == "torque_gain" else abs(truth.value)
+    for f in named:
+        err = abs(f.value - truth.value)
+        assert err <= 3 * f.std, f"{f.effect} {f.target}: {f.value:.6g} +- {f.std:.2g}, truth {truth.value}"
+        assert err <= 0.2 * size, f"{f.effect} {f.target}: {f.value:.6g}, truth {truth.value}"
+
+
+def _check_gain(dg: Diagnosis) -> None:
+    """The validation torque RMS of the joint the effect disturbs most at least halves."""
+    nominal, calibrated = dg.models["nominal"]["torque_rms"], dg.models["calibrated"]["torque_rms"]
+    worst = max(nominal, key=lambda j: nominal[j])
+    assert calibrated[worst] <= 0.5 * nominal[worst], (nominal, calibrated)
+    sim = dg.models["calibrated"]["simulation_error"]
+    assert all(sim[j] <= dg.models["nominal"]["simulation_error"][j] for j in sim)
+
+
+TWO_LINK_CASES = [
+    HiddenEffect("armature", "elbow", 0.006),  # 2.7 x the rotor inertia: a forgotten gear stage
+    HiddenEffect("coulomb_friction", "shoulder", 0.08),
+    HiddenEffect("viscous_friction", "elbow", 0.02),
+    HiddenEffect("joint_stiffness", "shoulder", 0.3, springref=0.1),
+    HiddenEffect("payload", "link2", 0.1, position=(0.0, 0.0, -0.3)),
+    # the shoulder's: an elbow offset only rotates link 2's inertial, which the rigid-body refit explains as well
+    HiddenEffect("joint_offset", "shoulder", 0.05),
+    HiddenEffect("torque_offset", "shoulder", 0.05),
+    HiddenEffect("torque_gain", "elbow", 0.9),
+]
+
+
+@pytest.mark.parametrize("truth", TWO_LINK_CASES, ids=lambda e: e.effect)
+def test_two_link_hidden_effect_is_named(truth: HiddenEffect, tmp_path: Path) -> None:
+    plant, train, validation = simulate("two_link", [truth], seed=1, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation)
+    _check_found(dg, truth)
+    _check_gain(dg)
+
+
+def test_two_link_time_delay_is_named(tmp_path: Path) -> None:
+    # MuJoCo's semi-implicit step puts positions half a physics step (0.25 ms at 0.5 ms) after the torque
+    # that moved them: a real but tiny lag that the 0.05 ms std of the delay would see. A 0.1 ms physics
+    # step makes it negligible so that the test judges the diagnosis, not the integrator.
+    truth = HiddenEffect("time_delay", "", 0.006)
+    plant, train, validation = simulate("two_link", [truth], seed=1, directory=tmp_path, timestep=1e-4)
+    dg = run_diagnosis(plant, train, validation)
+    _check_found(dg, truth)
+    assert {f.target for f in dg.findings if f.effect == "time_delay"} == {"shoulder", "elbow"}
+    _check_gain(dg)
+
+
+def test_pendulum_hidden_viscous_friction(tmp_path: Path) -> None:
+    truth = HiddenEffect("viscous_friction", "swing", 0.01)
+    plant, train, validation = simulate("pendulum", [truth], seed=2, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation)
+    _check_found(dg, truth)
+    _check_gain(dg)
+
+
+@pytest.mark.slow
+def test_wheel_pendulum_hidden_wheel_friction(tmp_path: Path) -> None:
+    truth = HiddenEffect("coulomb_friction", "wheel", 0.01)
+    plant, train, validation = simulate("wheel_pendulum", [truth], seed=3, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation)
+    _check_found(dg, truth)
+    _check_gain(dg)
+
+
+def test_two_effects_at_once_are_both_named(tmp_path: Path) -> None:
+    truths = [HiddenEffect("coulomb_friction", "elbow", 0.06), HiddenEffect("torque_offset", "shoulder", 0.05)]
+    plant, train, validation = simulate("two_link", truths, seed=4, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation)
+    named = {(f.effect, f.target) for f in dg.findings[:2]}
+    assert named == {(t.effect, t.target) for t in truths}, [f.to_dict() for f in dg.findings]
+    for t in truths:
+        f = next(f for f in dg.findings if (f.effect, f.target) == (t.effect, t.target))
+        assert abs(f.value - t.value) <= min(3 * f.std, 0.2 * abs(t.value))
+    nominal, calibrated = dg.models["nominal"]["torque_rms"], dg.models["calibrated"]["torque_rms"]
+    assert all(calibrated[j] <= 0.5 * nominal[j] for j in nominal)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(10))
+def test_clean_data_has_no_discrepancy(seed: int, tmp_path: Path) -> None:
+    plant, train, validation = simulate("two_link", [], seed=100 + seed, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation)
+    assert dg.verdict == "no_discrepancy", [f.to_dict() for f in dg.findings]
+    assert dg.findings == []
+
+
+def test_effect_outside_the_library_is_unexplained(tmp_path: Path) -> None:
+    truth = HiddenEffect("coulomb_friction", "shoulder", 0.08)
+    plant, train, validation = simulate("two_link", [truth], seed=5, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation, effects=("time_delay", "torque_gain"))
+    assert dg.findings == []
+    assert dg.verdict == "unexplained_structure"
+    assert dg.whiteness["nominal"]["shoulder"]["structured"]
+
+
+def test_calibrated_mjcf_carries_the_effect(tmp_path: Path) -> None:
+    truth = HiddenEffect("coulomb_friction", "shoulder", 0.08)
+    plant, train, validation = simulate("two_link", [truth], seed=1, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation)
+    calibrated = plant_from_xml(dg.calibrated_xml, "two_link_calibrated", tmp_path / "calibrated")
+    assert calibrated.frictionloss[0] == pytest.approx(0.08, rel=0.05)
+    np.testing.assert_allclose(calibrated.theta, plant.theta, atol=1e-6)
+    mapping = dg.frictionloss_mapping["shoulder"]
+    assert mapping["frictionloss"] == pytest.approx(calibrated.frictionloss[0])
+    assert 0.0 <= mapping["relative"] < 1.0
+    payload = dg.to_dict()
+    assert set(payload) >= {"system", "baseline", "findings", "verdict", "extended"}
+    assert set(payload["extended"]) >= {"torque_rms", "mjcf", "simulation_error"}
+    assert set(payload["findings"][0]) >= {"effect", "joint", "value", "std", "unit", "evidence", "torque_rms_after"}
+
+
+def test_hidden_effects_change_the_model(tmp_path: Path) -> None:
+    plant = load_plant("two_link")
+    payload = HiddenEffect("payload", "link2", 0.1, position=(0.0, 0.0, -0.3))
+    hidden, sensor = apply_effects(
+        plant,
+        [payload, HiddenEffect("viscous_friction", "elbow", 0.01), HiddenEffect("time_delay", "", 0.004)],
+        sensor=SensorModel(),
+        directory=tmp_path,
+    )
+    assert hidden.theta[10] == pytest.approx(plant.theta[10] + 0.1)
+    assert hidden.theta[13] == pytest.approx(plant.theta[13] - 0.03, abs=1e-6)  # MZ2 += m z
+    assert hidden.damping[1] == pytest.approx(plant.damping[1] + 0.01)
+    assert sensor.delay_s == 0.004
+    assert dataclasses.replace(sensor, delay_s=0.0).noiseless
+    with pytest.raises(ValueError, match="valid choices"):
+        HiddenEffect("backlash", "elbow", 0.1)
+    with pytest.raises(ValueError, match="unknown joint"):
+        apply_effects(plant, [HiddenEffect("armature", "wrist", 0.1)], sensor=SensorModel())
+
+
+def test_record_offsets_absorb_offsets_that_change_between_recordings(tmp_path: Path) -> None:
+    # a torque sensor re-zeroed at every power-up: 0.03 N m in one recording, 0.07 N m in the other
+    plant, first, _ = simulate("two_link", [HiddenEffect("torque_offset", "shoulder", 0.03)], 6, tmp_path / "a")
+    _, second, validation = simulate("two_link", [HiddenEffect("torque_offset", "shoulder", 0.07)], 7, tmp_path / "b")
+    dg = diagnose(
+        plant,
+        [first, second],
+        [validation],
+        rng=np.random.default_rng(0),
+        derivative_options={"cutoff_hz": 10.0},
+        record_offsets=True,
+    )
+    assert dg.verdict == "no_discrepancy", [f.to_dict() for f in dg.findings]
+    offsets = [r["shoulder"] for r in dg.info["record_offsets"]]
+    np.testing.assert_allclose(offsets, [0.03, 0.07], atol=0.005)

@@ -1,0 +1,84 @@
+"""`sysid-diagnose` through its plain `run(cfg)`: the composed config writes diagnosis.json, diagnosis.rrd
+and <system>_calibrated.xml, and a failure leaves nothing half-written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from conftest import compose_config, rrd_rows
+from test_diagnose import simulate
+
+import harness.diagnose as cli
+from envs.dataset import write_csv
+from envs.effects import HiddenEffect
+from envs.plant import load_plant
+
+OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml")
+
+
+@pytest.fixture(scope="module")
+def csv_files(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """A pendulum with hidden viscous friction: a training and a validation file."""
+    folder = tmp_path_factory.mktemp("data")
+    _, train, validation = simulate("pendulum", [HiddenEffect("viscous_friction", "swing", 0.01)], 2, folder)
+    paths = [folder / "train.csv", folder / "validation.csv"]
+    write_csv(train, paths[0])
+    write_csv(validation, paths[1])
+    return paths
+
+
+def _config(paths: list[Path], out: Path, *extra: str):  # type: ignore[no-untyped-def]
+    listed = ",".join(str(p) for p in paths)
+    return compose_config(
+        ["system=pendulum", f"data.path=[{listed}]", f"output_dir={out}", "diagnose.references=null", *extra],
+        config_name="diagnose",
+    )
+
+
+def test_diagnose_writes_the_three_files(csv_files: list[Path], tmp_path: Path) -> None:
+    result = cli.run(_config(csv_files, tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(OUTPUTS)
+    payload = json.loads((tmp_path / "diagnosis.json").read_text())
+    assert payload == json.loads(json.dumps(result))
+    assert payload["system"] == "pendulum"
+    assert payload["verdict"] == "explained"
+    assert payload["findings"][0]["effect"] == "viscous_friction"
+    assert payload["findings"][0]["joint"] == "swing"
+    assert payload["split"]["by"] == "file"
+    assert payload["extended"]["mjcf"] == "pendulum_calibrated.xml"
+    assert set(payload["extended"]["simulation_error"]) == {"nominal", "extended"}
+    assert payload["extended"]["torque_rms"]["swing"] < 0.5 * payload["baseline"]["torque_rms"]["swing"]
+    calibrated = load_plant(tmp_path / "pendulum_calibrated.xml")
+    assert calibrated.damping[0] == pytest.approx(0.01, rel=0.1)
+    rows = rrd_rows(tmp_path / "diagnosis.rrd")
+    assert rows["/joints/swing/tau/measured"] > 100
+    assert rows["/joints/swing/q/simulated_calibrated"] > 100
+    assert "/findings" in rows
+
+
+def test_single_file_is_split_by_time_block(csv_files: list[Path], tmp_path: Path) -> None:
+    payload = cli.run(_config(csv_files[:1], tmp_path, "diagnose.recording=false"))
+    assert payload["split"]["by"] == "time_block"
+    train, validation = payload["split"]["train"][0], payload["split"]["validation"][0]
+    assert train["t_end"] < validation["t_start"]
+    assert not (tmp_path / "diagnosis.rrd").exists()
+
+
+def test_failure_leaves_nothing_half_written(
+    csv_files: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(path: Path, payload: dict) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(cli, "write_json", broken)
+    with pytest.raises(OSError, match="disk full"):
+        cli.run(_config(csv_files, tmp_path))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unknown_effect_fails_before_any_work(csv_files: list[Path], tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="valid choices"):
+        cli.run(_config(csv_files, tmp_path, "diagnose.effects=[backlash]"))
+    assert not any(tmp_path.iterdir())
