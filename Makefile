@@ -27,8 +27,13 @@ lint: $(STAMP)
 test: lint
 	$(BIN)/python -m pytest -n 2 -q
 
-bench: $(STAMP)
+bench: $(VENV)/.installed-bench
 	$(BIN)/python -m bench
+
+# the benchmarks also need the peer tools (mujoco.sysid's extras): the [bench] group
+$(VENV)/.installed-bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e ".[dev,bench]"
+	touch $(VENV)/.installed-bench
 
 clean:
 	rm -rf outputs multirun .pytest_cache .mypy_cache .ruff_cache
