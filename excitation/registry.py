@@ -11,6 +11,7 @@ from envs.plant import Plant
 from excitation.designs import default_design, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
+from excitation.optimise import optimise_excitation
 from identify.model import ParameterModel
 
 __all__ = ["EXCITATIONS", "design_excitation"]
@@ -35,7 +36,11 @@ def _random(  # type: ignore[no-untyped-def]
     )
 
 
-EXCITATIONS: dict[str, Callable[..., FourierDesign]] = {"default": _default, "random": _random}
+def _optimised(plant: Plant, limits: Limits, **kwargs: Any) -> FourierDesign:
+    return optimise_excitation(plant, limits, **kwargs).design
+
+
+EXCITATIONS: dict[str, Callable[..., FourierDesign]] = {"default": _default, "optimised": _optimised, "random": _random}
 
 
 def design_excitation(

@@ -23,6 +23,7 @@ from excitation.designs import grid
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits, limits_for
 from excitation.registry import EXCITATIONS, design_excitation
+from harness.progress import printer
 from harness.results import run_job, summary_table, write_json
 from identify.base import BaseParameters, base_parameters
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
@@ -125,7 +126,7 @@ def _identify(
 ) -> tuple[Estimate, Problem]:
     states = derive_states(data, cfg.identify.derivatives, **_derivative_options(cfg, design))
     problem = build_problem(data, states, model, base)
-    options = OmegaConf.to_container(cfg.estimator.options)
+    options = OmegaConf.to_container(cfg.estimator.options, resolve=True)
     return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
 
 
@@ -160,8 +161,9 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
             plant,
             limits,
             rng=rng_design,
+            progress=printer("excitation"),
             **design_kw,
-            **OmegaConf.to_container(cfg.excitation.options),  # type: ignore[arg-type]
+            **OmegaConf.to_container(cfg.excitation.options, resolve=True),  # type: ignore[arg-type]
         )
     with _timed(timing, "simulation"):
         data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods))

@@ -1,0 +1,708 @@
+"""Optimised excitation: the Fourier design with the best-conditioned regressor that the limits allow.
+
+Position designs (fully actuated systems) are optimised by SLSQP from several starts (the default design
+and random ones drawn from `rng`), with the criterion's analytic gradient (`excitation.criteria`). The
+limits are constraints on a time grid: joint range, speed and acceleration are linear in the coefficients;
+the torque comes from the nominal model (Pinocchio's RNEA with the MJCF's armature, damping and stiffness)
+with its analytic derivatives. The result is checked on a grid ten times denser and, should a peak fall
+between the grid's points, shrunk until every limit holds there.
+
+Torque designs (underactuated systems) drive the actuated joints open loop; the motion, and with it the
+regressor, comes from simulating the nominal model from rest. Their criterion is evaluated on batched
+rollouts (`mujoco.rollout`) and improved by an evolution strategy whose populations are rolled out together
+(derivative-free: the motion's sensitivity would need the whole rollout differentiated). Each candidate is
+scaled to its limits, as random designs are, and the result is checked at every physics step.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+from mujoco import rollout
+from scipy.optimize import minimize
+
+from envs.errors import InfeasibleExcitationError, RankDeficientError
+from envs.plant import Plant
+from excitation.criteria import CRITERIA, conditioning, design_criterion
+from excitation.criteria import criterion as evaluate_criterion
+from excitation.designs import default_design, fit_to_limits, grid, random_design
+from excitation.fourier import FourierDesign
+from excitation.limits import Limits
+from identify.base import BaseParameters, base_parameters
+from identify.model import ParameterModel
+
+__all__ = [
+    "GRADIENTS",
+    "OptimisedExcitation",
+    "assess_design",
+    "nominal_torque",
+    "optimise_excitation",
+    "position_limit_ratios",
+]
+
+GRADIENTS = ("analytic", "finite_difference")
+_CHECK_DENSITY = 10  # the result is verified on a grid this many times denser than the one optimised on
+
+
+@dataclass(frozen=True)
+class OptimisedExcitation:
+    """An optimised design and the numbers that describe it.
+
+    Attributes:
+        design: the optimised Fourier design (joint motion, or drive torque when torque driven).
+        criterion: the criterion's name.
+        cond_XtX: cond(X'X) of the stacked base regressor on the check grid (raw).
+        cond_W_colnorm: cond(W) with unit-norm columns on the check grid.
+        ratios: worst use of each bound (`q`, `dq`, `ddq`, `tau`) on the check grid; <= 1 holds.
+        start_conds: (starts,) cond(X'X) of each start before optimisation.
+        final_conds: (starts,) cond(X'X) of each start after optimisation.
+        wall_s: optimisation wall time [s].
+        evaluations: criterion evaluations (gradients included) over every start.
+    """
+
+    design: FourierDesign
+    criterion: str
+    cond_XtX: float
+    cond_W_colnorm: float
+    ratios: dict[str, float]
+    start_conds: tuple[float, ...]
+    final_conds: tuple[float, ...]
+    wall_s: float
+    evaluations: int
+    options: dict = field(default_factory=dict)
+
+    @property
+    def limits_ok(self) -> bool:
+        return max(self.ratios.values()) <= 1.0
+
+
+def nominal_torque(
+    plant: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, *, derivatives: bool = False
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Joint torque of the nominal model (RNEA with armature, plus damping and stiffness) at each sample.
+
+    Args:
+        q, dq, ddq: (N, nv) joint positions [rad], velocities [rad/s], accelerations [rad/s^2].
+        derivatives: also return the torque's derivatives.
+
+    Returns:
+        tau: (N, nv) [N m].
+        D: (3, N, nv, nv) dtau/dq, dtau/ddq, dtau/dddq per sample, or None.
+    """
+    pm = plant.pin_model
+    data = pm.createData()
+    tau = np.empty_like(q)
+    D = np.empty((3, *q.shape, q.shape[1])) if derivatives else None
+    for k in range(len(q)):
+        if D is None:
+            tau[k] = pin.rnea(pm, data, q[k], dq[k], ddq[k])
+            continue
+        d_q, d_v, d_a = pin.computeRNEADerivatives(pm, data, q[k], dq[k], ddq[k])
+        tau[k] = data.tau
+        D[0, k], D[1, k], D[2, k] = d_q, d_v, d_a  # copies: Pinocchio hands back views of `data`
+    tau += plant.damping * dq + plant.stiffness * (q - plant.springref)
+    if D is not None:
+        D[0] += np.diag(plant.stiffness)
+        D[1] += np.diag(plant.damping)
+    return tau, D
+
+
+def position_limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, t: np.ndarray) -> dict[str, float]:
+    """Worst use of each bound by a position design on the times `t` [s] (torque of the nominal model)."""
+    q, dq, ddq = design.evaluate(t)
+    return limits.ratios(q, dq, ddq, nominal_torque(plant, q, dq, ddq)[0])
+
+
+def assess_design(
+    plant: Plant,
+    limits: Limits,
+    design: FourierDesign,
+    *,
+    model: ParameterModel,
+    base: BaseParameters,
+    torque_driven: bool = False,
+    periods: float = 3.0,
+    points_per_period: int = 1000,
+) -> tuple[float, float, dict[str, float]]:
+    """cond(X'X), column-normalised cond(W) and the worst use of each bound of any design.
+
+    A position design is sampled at `points_per_period` per period (torque of the nominal model); a torque
+    design is simulated from rest for `periods` periods and checked at every physics step.
+    """
+    if torque_driven:
+        search = _TorqueSearch(
+            plant, limits, model, base, criterion="cond", periods=periods, margin=0.0, criterion_points=100
+        )
+        ratios, W = search.check(design)
+    else:
+        t = grid(design, points_per_period)
+        ratios = position_limit_ratios(plant, design, limits, t)
+        W = base.columns(model.regressor(*design.evaluate(t)))
+    return (*conditioning(W), ratios)
+
+
+def optimise_excitation(
+    plant: Plant,
+    limits: Limits,
+    *,
+    model: ParameterModel,
+    harmonics: int,
+    base_freq_hz: float,
+    rng: np.random.Generator,
+    criterion: str = "cond",
+    starts: int = 4,
+    at_rest: bool = False,
+    torque_driven: bool = False,
+    gradient: str = "analytic",
+    sharpness: float | None = 20.0,
+    criterion_points: int = 100,
+    limit_points: int = 100,
+    margin: float = 0.01,
+    max_iter: int = 100,
+    periods: float = 3.0,
+    generations: int = 8,
+    population: int = 8,
+    fill_limits: bool = True,
+    base: BaseParameters | None = None,
+    progress: Callable[[float, str], None] | None = None,
+) -> OptimisedExcitation:
+    """The design of `harmonics` harmonics of `base_freq_hz` that minimises `criterion` within `limits`.
+
+    Args:
+        model: the parameters to identify; its base regressor (effect columns included) is conditioned.
+        rng: draws the random starts (and the evolution strategy's samples for torque designs).
+        criterion: a key of `excitation.criteria.CRITERIA`.
+        starts: optimisations run; the first starts from the default design, the others from random ones.
+        at_rest: start and end every period at rest (dq = ddq = 0 at t = 0; position designs only).
+        torque_driven: design an open-loop drive torque (underactuated systems).
+        gradient: `analytic` (chain rule) or `finite_difference` (SciPy's, the baseline benchmarked against).
+        sharpness: p of the smooth cond bound minimised (None: the exact, non-smooth cond).
+        criterion_points, limit_points: samples per period of the criterion's and the limits' grids.
+        margin: fraction of each bound kept free while optimising (the result is re-checked without it).
+        max_iter: SLSQP iterations per start.
+        periods: simulated periods from rest for a torque design (as long as the identification data).
+        generations, population: evolution strategy for torque designs.
+        fill_limits: torque designs: scale every candidate until its most used bound is (nearly) met, as the
+            random and default designs are; otherwise raw cond favours barely moving (its velocity-squared
+            columns shrink fastest).
+        base: the model's base parameters (found with `rng` when not given).
+        progress: called as progress(fraction done, message) after each start or generation.
+
+    Raises:
+        ValueError: unknown criterion or gradient (the message lists the valid ones).
+        InfeasibleExcitationError: the limits leave no useful motion (the message names the binding bound).
+        RankDeficientError: a base parameter's regressor column vanishes on every trajectory.
+    """
+    if criterion not in CRITERIA:
+        raise ValueError(f"unknown excitation criterion {criterion!r}; valid choices: {', '.join(sorted(CRITERIA))}")
+    if gradient not in GRADIENTS:
+        raise ValueError(f"unknown gradient {gradient!r}; valid choices: {', '.join(GRADIENTS)}")
+    if starts < 1:
+        raise ValueError(f"starts must be >= 1, got {starts}")
+    base = base if base is not None else base_parameters(model, rng.spawn(1)[0])
+    options = {"criterion": criterion, "starts": starts, "at_rest": at_rest, "gradient": gradient}
+    clock = time.perf_counter()
+    check_points = 0  # torque designs are checked at every physics step
+    if torque_driven:
+        search = _TorqueSearch(
+            plant,
+            limits,
+            model,
+            base,
+            criterion=criterion,
+            periods=periods,
+            margin=margin,
+            criterion_points=criterion_points,
+            fill=fill_limits,
+        )
+        shapes = [_raw_torque_shape(plant, harmonics, base_freq_hz, None if i == 0 else rng) for i in range(starts)]
+        design, start_j, final_j = search.run(
+            shapes, rng, generations=generations, population=population, progress=progress
+        )
+        evaluations = search.evaluations
+    else:
+        problem = _PositionProblem(
+            plant,
+            limits,
+            model,
+            base,
+            harmonics=harmonics,
+            base_freq_hz=base_freq_hz,
+            criterion=criterion,
+            sharpness=sharpness,
+            criterion_points=criterion_points,
+            limit_points=limit_points,
+            margin=margin,
+        )
+        shapes = _position_starts(plant, limits, problem, rng, starts, at_rest)
+        design, start_j, final_j = problem.run(
+            shapes, at_rest=at_rest, gradient=gradient, max_iter=max_iter, progress=progress
+        )
+        evaluations = problem.evaluations
+        check_points = _CHECK_DENSITY * len(problem.t_lim)
+    wall_s = time.perf_counter() - clock
+    cond_xtx, cond_colnorm, ratios = assess_design(
+        plant,
+        limits,
+        design,
+        model=model,
+        base=base,
+        torque_driven=torque_driven,
+        periods=periods,
+        points_per_period=check_points,
+    )
+    return OptimisedExcitation(
+        design=design,
+        criterion=criterion,
+        cond_XtX=cond_xtx,
+        cond_W_colnorm=cond_colnorm,
+        ratios=ratios,
+        start_conds=tuple(start_j),
+        final_conds=tuple(final_j),
+        wall_s=wall_s,
+        evaluations=evaluations,
+        options=options,
+    )
+
+
+def _cond_xtx(A: np.ndarray) -> float:
+    return conditioning(A)[0]
+
+
+def _check_columns(A: np.ndarray, base: BaseParameters, plant: Plant) -> None:
+    """Fail early on a base regressor with a vanishing column: no trajectory can condition it."""
+    norms = np.linalg.norm(A, axis=0)
+    dead = [base.names[i] for i in np.flatnonzero(norms <= 1e-9 * norms.max())]
+    if dead:
+        raise RankDeficientError(
+            f"{plant.name}: the base regressor's columns of {dead} vanish on the trajectory (norms "
+            f"{norms.min():.3g} of at most {norms.max():.3g}); the base parameters keep an unidentifiable parameter"
+        )
+
+
+class _PositionProblem:
+    """SLSQP over x = [a, b, q0] with the limits as ratios r on a grid: |r| <= bound, as bound^2 - r^2 >= 0."""
+
+    def __init__(
+        self,
+        plant: Plant,
+        limits: Limits,
+        model: ParameterModel,
+        base: BaseParameters,
+        *,
+        harmonics: int,
+        base_freq_hz: float,
+        criterion: str,
+        sharpness: float | None,
+        criterion_points: int,
+        limit_points: int,
+        margin: float,
+    ) -> None:
+        self.plant, self.limits, self.model, self.base = plant, limits, model, base
+        self.n, self.H, self.f0 = plant.nv, harmonics, base_freq_hz
+        self.criterion, self.sharpness, self.bound = criterion, sharpness, 1.0 - margin
+        shape = FourierDesign(
+            base_freq_hz, np.zeros((self.n, harmonics)), np.zeros((self.n, harmonics)), np.zeros(self.n)
+        )
+        self.t_crit, self.t_lim = grid(shape, criterion_points), grid(shape, limit_points)
+        self.B = np.stack(shape.basis(self.t_lim))  # (3, N, 2H): q - q0, dq, ddq
+        self.P, self.c, self.scale = self._linear_rows()
+        self.act = np.flatnonzero(np.isfinite(limits.tau_max))
+        self.evaluations = 0
+        self._cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
+
+    def design(self, x: np.ndarray) -> FourierDesign:
+        return FourierDesign.from_vector(x, n_joints=self.n, harmonics=self.H, base_freq_hz=self.f0)
+
+    def _columns(self, j: int) -> tuple[np.ndarray, np.ndarray, int]:
+        nH = self.n * self.H
+        a = j * self.H + np.arange(self.H)
+        return a, nH + a, 2 * nH + j
+
+    def _linear_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows P, centres c and half-widths s with ratio = (P x - c) / s for q, dq and ddq of every joint."""
+        lim, nx = self.limits, 2 * self.n * self.H + self.n
+        finite = np.isfinite(lim.q_min) & np.isfinite(lim.q_max)
+        rows, centres, scales = [], [], []
+        for j in range(self.n):
+            a, b, q0 = self._columns(j)
+            for d, (c, s) in enumerate(
+                [
+                    (0.5 * (lim.q_max[j] + lim.q_min[j]), 0.5 * (lim.q_max[j] - lim.q_min[j])),
+                    (0.0, lim.dq_max[j]),
+                    (0.0, lim.ddq_max[j]),
+                ]
+            ):
+                if d == 0 and not finite[j]:
+                    continue
+                P = np.zeros((self.B.shape[1], nx))
+                P[:, a], P[:, b] = self.B[d][:, : self.H], self.B[d][:, self.H :]
+                P[:, q0] = 1.0 if d == 0 else 0.0
+                rows.append(P)
+                centres.append(np.full(len(P), c))
+                scales.append(np.full(len(P), s))
+        return np.vstack(rows), np.concatenate(centres), np.concatenate(scales)
+
+    def _ratios(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every constrained ratio (linear rows, then torque of the actuated joints) and its Jacobian."""
+        key = x.tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1], self._cache[2]
+        q, dq, ddq = self.design(x).evaluate(self.t_lim)
+        tau, D = nominal_torque(self.plant, q, dq, ddq, derivatives=True)
+        assert D is not None
+        J_ab = np.einsum("dkji,dkh->kjih", D, self.B)  # (N, nv, nv, 2H)
+        N = len(self.t_lim)
+        J_tau = np.concatenate(
+            [J_ab[..., : self.H].reshape(N, self.n, -1), J_ab[..., self.H :].reshape(N, self.n, -1), D[0]], axis=2
+        )
+        tau_max = self.limits.tau_max[self.act]
+        r = np.concatenate([(self.P @ x - self.c) / self.scale, (tau[:, self.act] / tau_max).ravel()])
+        J = np.vstack([self.P / self.scale[:, None], (J_tau[:, self.act] / tau_max[:, None]).reshape(-1, len(x))])
+        self._cache = (key, r, J)
+        return r, J
+
+    def constraints(self, x: np.ndarray) -> np.ndarray:
+        """bound^2 - r^2 >= 0: both sides of every bound in one row (half the rows of a QP subproblem)."""
+        r = self._ratios(x)[0]
+        return self.bound**2 - r**2
+
+    def constraints_jacobian(self, x: np.ndarray) -> np.ndarray:
+        r, J = self._ratios(x)
+        return -2.0 * r[:, None] * J
+
+    def objective(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        self.evaluations += 1
+        value, g = design_criterion(
+            self.criterion, self.design(x), self.model, self.base, self.t_crit, sharpness=self.sharpness
+        )
+        assert g is not None
+        return value, g
+
+    def objective_value(self, x: np.ndarray) -> float:
+        self.evaluations += 1
+        return design_criterion(
+            self.criterion,
+            self.design(x),
+            self.model,
+            self.base,
+            self.t_crit,
+            sharpness=self.sharpness,
+            gradient=False,
+        )[0]
+
+    def rest_rows(self) -> np.ndarray:
+        """(2n, nx) E with E x = (dq(0), ddq(0)) of every joint."""
+        E = np.zeros((2 * self.n, 2 * self.n * self.H + self.n))
+        wl = 2 * np.pi * self.f0 * np.arange(1, self.H + 1)
+        for j in range(self.n):
+            a, b, _ = self._columns(j)
+            E[j, a], E[self.n + j, b] = 1.0, wl
+        return E
+
+    def exact(self, design: FourierDesign) -> tuple[float, float]:
+        """The criterion (exact, not smoothed) and cond(X'X) on the criterion's grid."""
+        q, dq, ddq = design.evaluate(self.t_crit)
+        A = self.base.columns(self.model.regressor(q, dq, ddq))
+        A = A.reshape(-1, A.shape[-1])
+        _check_columns(A, self.base, self.plant)
+        return evaluate_criterion(self.criterion, A)[0], _cond_xtx(A)
+
+    def solve(self, x0: np.ndarray, *, at_rest: bool, gradient: str, max_iter: int) -> np.ndarray:
+        analytic = gradient == "analytic"
+        ineq: dict = {"type": "ineq", "fun": self.constraints}
+        constraints = [ineq]
+        if analytic:
+            ineq["jac"] = self.constraints_jacobian
+        if at_rest:
+            E = self.rest_rows()
+            eq: dict = {"type": "eq", "fun": lambda x: E @ x}
+            if analytic:
+                eq["jac"] = lambda x: E
+            constraints.append(eq)
+        res = minimize(
+            self.objective if analytic else self.objective_value,
+            x0,
+            jac=True if analytic else None,
+            method="SLSQP",
+            constraints=constraints,
+            options={"maxiter": max_iter, "ftol": 1e-4},
+        )
+        return np.asarray(res.x)
+
+    def run(
+        self,
+        shapes: list[FourierDesign],
+        *,
+        at_rest: bool,
+        gradient: str,
+        max_iter: int,
+        progress: Callable[[float, str], None] | None = None,
+    ) -> tuple[FourierDesign, list[float], list[float]]:
+        """Optimise from every start; the best result that holds the limits on the dense grid wins."""
+        t_check = grid(shapes[0], _CHECK_DENSITY * len(self.t_lim))
+        best: tuple[float, FourierDesign] | None = None
+        start_j: list[float] = []
+        final_j: list[float] = []
+        for i, shape in enumerate(shapes):
+            if progress is not None:
+                done = f", best cond {min(final_j):.4g}" if final_j else ""
+                progress(i / len(shapes), f"start {i + 1}/{len(shapes)}{done}")
+            start_j.append(self.exact(shape)[1])
+            x = self.solve(shape.to_vector(), at_rest=at_rest, gradient=gradient, max_iter=max_iter)
+            try:
+                design = _shrink_into_limits(self.plant, self.design(x), self.limits, t_check)
+            except InfeasibleExcitationError:
+                design = shape  # SLSQP left the feasible set for good (offsets out of range): keep the start
+            value, cond = self.exact(design)
+            final_j.append(cond)
+            if best is None or value < best[0]:
+                best = (value, design)
+        assert best is not None
+        if progress is not None:
+            progress(1.0, f"{len(shapes)} starts, best cond {min(final_j):.4g}")
+        return best[1], start_j, final_j
+
+
+def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: np.ndarray) -> FourierDesign:
+    """The design, its amplitudes shrunk (offsets kept) until every bound holds on the times `t`.
+
+    Raises:
+        InfeasibleExcitationError: even the offsets alone break a bound (named in the message).
+    """
+
+    def worst(s: float) -> tuple[float, dict[str, float]]:
+        ratios = position_limit_ratios(plant, design.scaled(s), limits, t)
+        return max(ratios.values()), ratios
+
+    if worst(1.0)[0] <= 1.0:
+        return design
+    rest, ratios = worst(0.0)
+    if rest > 1.0:
+        q = np.broadcast_to(design.q0, (1, plant.nv))
+        raise InfeasibleExcitationError(
+            f"the optimised offsets q0 = {design.q0} break a limit at rest: binding constraint "
+            f"{limits.binding(ratios, q, np.zeros_like(q))}"
+        )
+    lo, hi = 0.0, 1.0
+    for _ in range(20):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if worst(mid)[0] <= 1.0 else (lo, mid)
+    return design.scaled(lo)
+
+
+def _position_starts(
+    plant: Plant, limits: Limits, problem: _PositionProblem, rng: np.random.Generator, starts: int, at_rest: bool
+) -> list[FourierDesign]:
+    """The default design and `starts - 1` random ones, each scaled into the limits (and brought to rest)."""
+    H, f0 = problem.H, problem.f0
+    shapes = [default_design(plant, limits, harmonics=H, base_freq_hz=f0)]
+    shapes += [random_design(plant, limits, harmonics=H, base_freq_hz=f0, rng=rng) for _ in range(starts - 1)]
+    if not at_rest:
+        return shapes
+    E = problem.rest_rows()
+    out = []
+    for shape in shapes:
+        x = shape.to_vector()
+        x = x - np.linalg.pinv(E) @ (E @ x)  # the nearest coefficients with dq(0) = ddq(0) = 0
+        out.append(fit_to_limits(plant, problem.design(x), limits))
+    return out
+
+
+def _raw_torque_shape(
+    plant: Plant, harmonics: int, base_freq_hz: float, rng: np.random.Generator | None
+) -> FourierDesign:
+    """A torque shape on the actuated joints: golden-ratio phases (rng None) or Gaussian, amplitude 1/l."""
+    n, H = plant.nv, harmonics
+    amp = 1.0 / np.arange(1, H + 1)[None, :] * plant.actuated[:, None]
+    if rng is None:
+        phase = 2 * np.pi * (np.sqrt(5.0) - 1.0) / 2.0 * (np.arange(n)[:, None] * H + np.arange(H)[None, :] + 1) * 3
+        a, b = amp * np.cos(phase), amp * np.sin(phase)
+    else:
+        a, b = amp * rng.normal(size=(n, H)), amp * rng.normal(size=(n, H))
+    return FourierDesign(base_freq_hz, a, b, np.zeros(n))
+
+
+class _TorqueSearch:
+    """Evolution strategy over the drive-torque coefficients; each population is rolled out in one batch.
+
+    Candidates are capped at the torque bound and, with `fill`, scaled until their most used bound is met;
+    the motion's bounds (range, speed, acceleration) are checked on every tenth physics step while searching
+    (with the margin) and on every step at the end.
+    """
+
+    _LIMIT_STRIDE = _CHECK_DENSITY
+
+    def __init__(
+        self,
+        plant: Plant,
+        limits: Limits,
+        model: ParameterModel,
+        base: BaseParameters,
+        *,
+        criterion: str,
+        periods: float,
+        margin: float,
+        criterion_points: int,
+        fill: bool = False,
+    ) -> None:
+        self.plant, self.limits, self.model, self.base = plant, limits, model, base
+        self.fill = fill
+        self.criterion, self.periods, self.bound = criterion, periods, 1.0 - margin
+        self.criterion_points = criterion_points
+        m = plant.mj_model
+        self.dt = float(m.opt.timestep)
+        self.act = np.flatnonzero(plant.actuated)
+        self.act_joint = np.array([int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)], dtype=int)
+        self.datas = [mujoco.MjData(m) for _ in range(min(2, os.cpu_count() or 1))]
+        self.evaluations = 0
+
+    def _rollout(self, designs: list[FourierDesign]) -> tuple[np.ndarray, ...]:
+        """q, dq, ddq, tau: each (batch, nstep, nv), from rest, at every physics step."""
+        m = self.plant.mj_model
+        nstep = int(round(self.periods * designs[0].period_s / self.dt)) + 1
+        t = np.arange(nstep) * self.dt
+        tau = np.stack([d.torque(t) for d in designs])
+        control = tau[:, :, self.act_joint] / m.actuator_gear[:, 0]
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        data = mujoco.MjData(m)
+        state0 = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, data, state0, spec)
+        states, _ = rollout.rollout(m, self.datas, state0[None, :], control)
+        q, dq = states[:, :, 1 : 1 + m.nq], states[:, :, 1 + m.nq : 1 + m.nq + m.nv]
+        ddq = np.diff(dq, axis=1) / self.dt
+        return q[:, :-1], dq[:, :-1], ddq, tau[:, 1:]
+
+    def _stride(self, design: FourierDesign) -> int:
+        return max(1, int(round(design.period_s / self.dt / self.criterion_points)))
+
+    def score(
+        self, designs: list[FourierDesign], *, limit_stride: int, bound: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, float]]]:
+        """Criterion, cond(X'X), bound violation (0 where every bound holds) and ratios of each design."""
+        q, dq, ddq, tau = self._rollout(designs)
+        cs, ls = self._stride(designs[0]), limit_stride
+        values, conds, violation, all_ratios = [], [], [], []
+        for b in range(len(designs)):
+            ratios = self.limits.ratios(q[b, ::ls], dq[b, ::ls], ddq[b, ::ls], tau[b, ::ls])
+            A = self.base.columns(self.model.regressor(q[b, ::cs], dq[b, ::cs], ddq[b, ::cs]))
+            A = A.reshape(-1, A.shape[-1])
+            _check_columns(A, self.base, self.plant)
+            values.append(evaluate_criterion(self.criterion, A)[0])
+            conds.append(_cond_xtx(A))
+            violation.append(max(0.0, max(ratios.values()) - bound))
+            all_ratios.append(ratios)
+        self.evaluations += len(designs)
+        return np.array(values), np.array(conds), np.array(violation), all_ratios
+
+    def _to_torque_bound(self, design: FourierDesign, *, grow: bool = False) -> FourierDesign:
+        """Scaled down (or, with `grow`, up) until the peak drive torque meets the bound."""
+        peak = np.max(np.abs(design.torque(grid(design, 2000))), axis=0)[self.act]
+        if not np.any(peak > 0):
+            return design
+        s = float(np.min(self.bound * self.limits.tau_max[self.act] / np.maximum(peak, 1e-300)))
+        return design.scaled(s if grow else min(1.0, s))
+
+    def _vector(self, design: FourierDesign) -> np.ndarray:
+        return np.concatenate([design.a[self.act].ravel(), design.b[self.act].ravel()])
+
+    def _design(self, z: np.ndarray, like: FourierDesign) -> FourierDesign:
+        a, b = np.zeros_like(like.a), np.zeros_like(like.b)
+        k = len(self.act) * like.harmonics
+        a[self.act], b[self.act] = z[:k].reshape(len(self.act), -1), z[k:].reshape(len(self.act), -1)
+        return FourierDesign(like.base_freq_hz, a, b, like.q0)
+
+    def _filled(self, designs: list[FourierDesign]) -> list[FourierDesign]:
+        """Each design scaled so that its most used bound is just met (one batched rollout; the response is
+        close to linear in the amplitude, and what is not is caught by the scoring rollout)."""
+        viol = self.score(designs, limit_stride=self._LIMIT_STRIDE, bound=0.0)[2]
+        return [
+            self._to_torque_bound(d.scaled(0.97 * self.bound / max(v, 1e-12)))
+            for d, v in zip(designs, viol, strict=True)
+        ]
+
+    def _starts(self, shapes: list[FourierDesign]) -> tuple[FourierDesign, float, list[float]]:
+        """Each shape filled to the limits (or at the torque bound and five halvings), rolled out together."""
+        fractions = 0.5 ** np.arange(1 if self.fill else 6)
+        cands = [self._to_torque_bound(s, grow=True).scaled(float(f)) for s in shapes for f in fractions]
+        if self.fill:
+            cands = self._filled(cands)
+        values, conds, viol, ratios = self.score(cands, limit_stride=self._LIMIT_STRIDE, bound=self.bound)
+        ok = viol == 0
+        if not ok.any():
+            worst = ratios[int(np.argmin(viol))]
+            raise InfeasibleExcitationError(
+                f"no drive torque down to {fractions[-1]:.3g} x the torque bound keeps the simulated motion within "
+                f"the limits: binding constraint {self._binding(worst)} (worst use of each bound: "
+                f"{ {k: round(v, 3) for k, v in worst.items()} })"
+            )
+        best = int(np.argmin(np.where(ok, values, np.inf)))
+        per_start = np.where(ok, conds, np.inf).reshape(len(shapes), len(fractions)).min(axis=1)
+        return cands[best], float(values[best]), per_start.tolist()
+
+    def run(
+        self,
+        shapes: list[FourierDesign],
+        rng: np.random.Generator,
+        *,
+        generations: int,
+        population: int,
+        progress: Callable[[float, str], None] | None = None,
+    ) -> tuple[FourierDesign, list[float], list[float]]:
+        """Search from the best start; returns the best design, each start's cond and the final cond."""
+        best, best_value, start_conds = self._starts(shapes)
+        mean, sigma = self._vector(best), 0.3
+        elite = max(1, population // 4)
+        for generation in range(generations):
+            if progress is not None:
+                progress(generation / generations, f"generation {generation + 1}/{generations}, best {best_value:.4g}")
+            scale = sigma * np.sqrt(np.mean(mean**2))
+            cands = [
+                self._to_torque_bound(self._design(mean + scale * rng.normal(size=mean.shape), best))
+                for _ in range(population)
+            ]
+            if self.fill:
+                cands = self._filled(cands)
+            values, _, viol, _ = self.score(cands, limit_stride=self._LIMIT_STRIDE, bound=self.bound)
+            order = np.lexsort((values, viol))
+            if viol[order[0]] == 0 and values[order[0]] < best_value:
+                best, best_value, sigma = cands[order[0]], float(values[order[0]]), sigma * 1.3
+            else:
+                sigma *= 0.7
+            mean = np.mean([self._vector(cands[i]) for i in order[:elite]], axis=0)
+        best = self._verified(best)
+        if progress is not None:
+            progress(1.0, f"{generations} generations, best {best_value:.4g}")
+        return best, start_conds, [float(self.score([best], limit_stride=1, bound=1.0)[1][0])]
+
+    def _verified(self, design: FourierDesign) -> FourierDesign:
+        """The design, shrunk where needed until every bound holds on every physics step."""
+        if self.score([design], limit_stride=1, bound=1.0)[2][0] == 0:
+            return design
+        fractions = 0.98 ** np.arange(1, 17)
+        cands = [design.scaled(float(f)) for f in fractions]
+        _, _, viol, ratios = self.score(cands, limit_stride=1, bound=1.0)
+        ok = np.flatnonzero(viol == 0)
+        if ok.size == 0:
+            raise InfeasibleExcitationError(
+                f"the optimised drive torque breaks a limit on the dense grid even at {fractions[-1]:.2f} x its "
+                f"amplitude: binding constraint {self._binding(ratios[-1])}"
+            )
+        return cands[int(ok[0])]
+
+    def _binding(self, ratios: dict[str, float]) -> str:
+        empty = np.zeros((0, self.plant.nv))
+        return self.limits.binding(ratios, empty, empty)
+
+    def check(self, design: FourierDesign) -> tuple[dict[str, float], np.ndarray]:
+        """Ratios on every physics step and the stacked base regressor of the design's rollout."""
+        q, dq, ddq, tau = self._rollout([design])
+        cs = self._stride(design)
+        ratios = self.limits.ratios(q[0], dq[0], ddq[0], tau[0])
+        return ratios, self.base.columns(self.model.regressor(q[0, ::cs], dq[0, ::cs], ddq[0, ::cs]))
