@@ -11,7 +11,7 @@ import numpy as np
 
 from envs.errors import DataError
 
-__all__ = ["Dataset", "write_csv"]
+__all__ = ["Dataset", "atomic_write", "write_csv"]
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import pinocchio as pin
 
 from envs.errors import ModelError
 
-__all__ = ["MJCF_DIR", "SYSTEMS", "Plant", "load_plant", "mjcf_path"]
+__all__ = ["INERTIAL_SYMBOLS", "MJCF_DIR", "SYSTEMS", "Plant", "load_plant", "mjcf_path", "plant_from_xml"]
 
 MJCF_DIR = Path(__file__).resolve().parent.parent / "mjcf"
 SYSTEMS = ("arm3", "pendulum", "two_link", "wheel_pendulum")
