@@ -38,14 +38,13 @@ from typing import Any
 import mujoco
 import numpy as np
 from hydra import compose, initialize_config_dir
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from envs.dataset import Dataset
-from envs.plant import Plant, load_plant
-from excitation.limits import limits_for
-from excitation.registry import EXCITATIONS, design_excitation
-from harness.run import CONF_DIR, sensor_from_config, simulate_design
-from identify.base import BaseParameters, base_parameters
+from envs.plant import Plant
+from excitation.registry import EXCITATIONS
+from harness.run import CONF_DIR, design_from_config, experiment_from_config, simulate_design
+from identify.base import BaseParameters
 from identify.compare import predict_torque, torque_rms
 from identify.derivatives import States, derive_states
 from identify.diagnose.simulation_error import ode_stepper, simulation_error
@@ -128,30 +127,13 @@ def make_case(system: str, *, periods: float | None = None, val_periods: float |
         periods, val_periods: record lengths in periods of each design (None: the system config's).
     """
     cfg = _compose(system)
-    plant = load_plant(cfg.system.mjcf)
-    lim = cfg.system.limits
-    limits = limits_for(
-        plant,
-        velocity=list(lim.velocity) if OmegaConf.is_list(lim.velocity) else lim.velocity,
-        acceleration=list(lim.acceleration) if OmegaConf.is_list(lim.acceleration) else lim.acceleration,
-        range_margin=float(lim.range_margin),
-        torque_margin=float(lim.torque_margin),
-    )
     rng_design, rng_noise, rng_base, rng_val = np.random.default_rng(SEED).spawn(4)
-    model = ParameterModel(plant, tuple(cfg.system.effects))
-    base = base_parameters(model, rng_base)
-    sensor = sensor_from_config(cfg, plant)
-    kw: dict[str, Any] = {
-        "model": model,
-        "harmonics": int(cfg.excitation.harmonics),
-        "base_freq_hz": float(cfg.system.base_freq_hz),
-        "torque_driven": bool(cfg.system.torque_driven),
-    }
-    options = OmegaConf.to_container(cfg.excitation.options)
-    design = design_excitation(cfg.excitation.name, plant, limits, rng=rng_design, **kw, **options)  # type: ignore[arg-type]
+    exp = experiment_from_config(cfg, rng_base)
+    plant, model, base, sensor = exp.plant, exp.model, exp.base, exp.sensor
+    design = design_from_config(cfg, exp, cfg.excitation.name, rng_design)
     periods = float(cfg.system.periods) if periods is None else periods
     data = simulate_design(plant, design, cfg, sensor, rng_noise, periods)
-    val_design = design_excitation("random", plant, limits, rng=rng_val, **kw)
+    val_design = design_from_config(cfg, exp, "random", rng_val)
     val_periods = float(cfg.validation.periods) if val_periods is None else val_periods
     val_data = simulate_design(plant, val_design, cfg, sensor, rng_val, val_periods)
     return Case(

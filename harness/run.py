@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from excitation.designs import grid
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits, limits_for
 from excitation.registry import EXCITATIONS, design_excitation
-from harness.progress import printer
+from harness.progress import Progress, printer
 from harness.results import run_job, summary_table, write_json
 from identify.base import BaseParameters, base_parameters
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
@@ -33,7 +34,17 @@ from identify.estimators import ESTIMATORS, estimate
 from identify.model import ParameterModel
 from identify.problem import Estimate, Problem, build_problem
 
-__all__ = ["CONF_DIR", "conditioning", "main", "run"]
+__all__ = [
+    "CONF_DIR",
+    "Experiment",
+    "conditioning",
+    "design_from_config",
+    "experiment_from_config",
+    "main",
+    "run",
+    "sensor_from_config",
+    "simulate_design",
+]
 
 RECORD_KINDS = ("none", "rerun")
 # absolute, so that the entry point finds the configs wherever it is called from
@@ -130,6 +141,51 @@ def _identify(
     return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
 
 
+@dataclass(frozen=True)
+class Experiment:
+    """What a system config sets up: the plant, its limits, the parameters to identify and the sensors."""
+
+    plant: Plant
+    limits: Limits
+    model: ParameterModel
+    base: BaseParameters
+    sensor: SensorModel
+
+
+def experiment_from_config(cfg: DictConfig, rng: np.random.Generator) -> Experiment:
+    """The plant, limits, parameter model (with its base parameters, found with `rng`) and sensor of `cfg`."""
+    plant = load_plant(cfg.system.mjcf)
+    lim = cfg.system.limits
+    limits = limits_for(
+        plant,
+        velocity=list(lim.velocity) if OmegaConf.is_list(lim.velocity) else lim.velocity,
+        acceleration=list(lim.acceleration) if OmegaConf.is_list(lim.acceleration) else lim.acceleration,
+        range_margin=float(lim.range_margin),
+        torque_margin=float(lim.torque_margin),
+    )
+    model = ParameterModel(plant, tuple(cfg.system.effects))
+    return Experiment(plant, limits, model, base_parameters(model, rng), sensor_from_config(cfg, plant))
+
+
+def design_from_config(
+    cfg: DictConfig, exp: Experiment, name: str, rng: np.random.Generator, *, progress: Progress | None = None
+) -> FourierDesign:
+    """The excitation `name` for the experiment; the config's options apply to the configured design only."""
+    options = OmegaConf.to_container(cfg.excitation.options, resolve=True) if name == cfg.excitation.name else {}
+    return design_excitation(
+        name,
+        exp.plant,
+        exp.limits,
+        model=exp.model,
+        harmonics=int(cfg.excitation.harmonics),
+        base_freq_hz=float(cfg.system.base_freq_hz),
+        torque_driven=bool(cfg.system.torque_driven),
+        rng=rng,
+        progress=progress,
+        **options,  # type: ignore[arg-type]
+    )
+
+
 def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
     """The whole loop for `cfg.system`; writes results.json, data.csv and recording.rrd into `output_dir`."""
     _check_choices(cfg)
@@ -137,34 +193,10 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
     timing: dict[str, float] = {}
     rng_design, rng_noise, rng_base, rng_val = np.random.default_rng(int(cfg.seed)).spawn(4)
     with _timed(timing, "setup"):
-        plant = load_plant(cfg.system.mjcf)
-        lim = cfg.system.limits
-        limits = limits_for(
-            plant,
-            velocity=list(lim.velocity) if OmegaConf.is_list(lim.velocity) else lim.velocity,
-            acceleration=list(lim.acceleration) if OmegaConf.is_list(lim.acceleration) else lim.acceleration,
-            range_margin=float(lim.range_margin),
-            torque_margin=float(lim.torque_margin),
-        )
-        model = ParameterModel(plant, tuple(cfg.system.effects))
-        base = base_parameters(model, rng_base)
-        sensor = sensor_from_config(cfg, plant)
-    design_kw: dict[str, Any] = {
-        "model": model,
-        "harmonics": int(cfg.excitation.harmonics),
-        "base_freq_hz": float(cfg.system.base_freq_hz),
-        "torque_driven": bool(cfg.system.torque_driven),
-    }
+        exp = experiment_from_config(cfg, rng_base)
+        plant, limits, model, base, sensor = exp.plant, exp.limits, exp.model, exp.base, exp.sensor
     with _timed(timing, "excitation"):
-        design = design_excitation(
-            cfg.excitation.name,
-            plant,
-            limits,
-            rng=rng_design,
-            progress=printer("excitation"),
-            **design_kw,
-            **OmegaConf.to_container(cfg.excitation.options, resolve=True),  # type: ignore[arg-type]
-        )
+        design = design_from_config(cfg, exp, cfg.excitation.name, rng_design, progress=printer("excitation"))
     with _timed(timing, "simulation"):
         data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods))
     with _timed(timing, "identification"):
@@ -173,7 +205,7 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
         comparison = compare_with_truth(est, beta_true)
         derived = _derived(plant, base, est)
     with _timed(timing, "validation"):
-        val_design = design_excitation("random", plant, limits, rng=rng_val, **design_kw)
+        val_design = design_from_config(cfg, exp, "random", rng_val)
         val_data = simulate_design(plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods))
         val_states = derive_states(val_data, cfg.identify.derivatives, **_derivative_options(cfg, val_design))
         rows = val_states.valid
