@@ -16,24 +16,22 @@ scaled to its limits, as random designs are, and the result is checked at every 
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 import pinocchio as pin
-from mujoco import rollout
 from scipy.optimize import minimize
 
-from envs.errors import InfeasibleExcitationError, RankDeficientError
+from envs.errors import InfeasibleExcitationError
 from envs.plant import Plant
 from excitation.criteria import CRITERIA, conditioning, design_criterion
 from excitation.criteria import criterion as evaluate_criterion
 from excitation.designs import default_design, fit_to_limits, grid, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
+from excitation.torque_search import CHECK_DENSITY, TorqueSearch, check_columns, cond_xtx, raw_torque_shape
 from identify.base import BaseParameters, base_parameters
 from identify.model import ParameterModel
 
@@ -47,7 +45,6 @@ __all__ = [
 ]
 
 GRADIENTS = ("analytic", "finite_difference")
-_CHECK_DENSITY = 10  # the result is verified on a grid this many times denser than the one optimised on
 
 
 @dataclass(frozen=True)
@@ -136,7 +133,7 @@ def assess_design(
     design is simulated from rest for `periods` periods and checked at every physics step.
     """
     if torque_driven:
-        search = _TorqueSearch(
+        search = TorqueSearch(
             plant, limits, model, base, criterion="cond", periods=periods, margin=0.0, criterion_points=100
         )
         ratios, W = search.check(design)
@@ -210,7 +207,7 @@ def optimise_excitation(
     clock = time.perf_counter()
     check_points = 0  # torque designs are checked at every physics step
     if torque_driven:
-        search = _TorqueSearch(
+        search = TorqueSearch(
             plant,
             limits,
             model,
@@ -221,7 +218,7 @@ def optimise_excitation(
             criterion_points=criterion_points,
             fill=fill_limits,
         )
-        shapes = [_raw_torque_shape(plant, harmonics, base_freq_hz, None if i == 0 else rng) for i in range(starts)]
+        shapes = [raw_torque_shape(plant, harmonics, base_freq_hz, None if i == 0 else rng) for i in range(starts)]
         design, start_j, final_j = search.run(
             shapes, rng, generations=generations, population=population, progress=progress
         )
@@ -245,7 +242,7 @@ def optimise_excitation(
             shapes, at_rest=at_rest, gradient=gradient, max_iter=max_iter, progress=progress
         )
         evaluations = problem.evaluations
-        check_points = _CHECK_DENSITY * len(problem.t_lim)
+        check_points = CHECK_DENSITY * len(problem.t_lim)
     wall_s = time.perf_counter() - clock
     cond_xtx, cond_colnorm, ratios = assess_design(
         plant,
@@ -269,21 +266,6 @@ def optimise_excitation(
         evaluations=evaluations,
         options=options,
     )
-
-
-def _cond_xtx(A: np.ndarray) -> float:
-    return conditioning(A)[0]
-
-
-def _check_columns(A: np.ndarray, base: BaseParameters, plant: Plant) -> None:
-    """Fail early on a base regressor with a vanishing column: no trajectory can condition it."""
-    norms = np.linalg.norm(A, axis=0)
-    dead = [base.names[i] for i in np.flatnonzero(norms <= 1e-9 * norms.max())]
-    if dead:
-        raise RankDeficientError(
-            f"{plant.name}: the base regressor's columns of {dead} vanish on the trajectory (norms "
-            f"{norms.min():.3g} of at most {norms.max():.3g}); the base parameters keep an unidentifiable parameter"
-        )
 
 
 class _PositionProblem:
@@ -411,8 +393,8 @@ class _PositionProblem:
         q, dq, ddq = design.evaluate(self.t_crit)
         A = self.base.columns(self.model.regressor(q, dq, ddq))
         A = A.reshape(-1, A.shape[-1])
-        _check_columns(A, self.base, self.plant)
-        return evaluate_criterion(self.criterion, A)[0], _cond_xtx(A)
+        check_columns(A, self.base, self.plant)
+        return evaluate_criterion(self.criterion, A)[0], cond_xtx(A)
 
     def solve(self, x0: np.ndarray, *, at_rest: bool, gradient: str, max_iter: int) -> np.ndarray:
         analytic = gradient == "analytic"
@@ -446,7 +428,7 @@ class _PositionProblem:
         progress: Callable[[float, str], None] | None = None,
     ) -> tuple[FourierDesign, list[float], list[float]]:
         """Optimise from every start; the best result that holds the limits on the dense grid wins."""
-        t_check = grid(shapes[0], _CHECK_DENSITY * len(self.t_lim))
+        t_check = grid(shapes[0], CHECK_DENSITY * len(self.t_lim))
         best: tuple[float, FourierDesign] | None = None
         start_j: list[float] = []
         final_j: list[float] = []
@@ -513,196 +495,3 @@ def _position_starts(
         x = x - np.linalg.pinv(E) @ (E @ x)  # the nearest coefficients with dq(0) = ddq(0) = 0
         out.append(fit_to_limits(plant, problem.design(x), limits))
     return out
-
-
-def _raw_torque_shape(
-    plant: Plant, harmonics: int, base_freq_hz: float, rng: np.random.Generator | None
-) -> FourierDesign:
-    """A torque shape on the actuated joints: golden-ratio phases (rng None) or Gaussian, amplitude 1/l."""
-    n, H = plant.nv, harmonics
-    amp = 1.0 / np.arange(1, H + 1)[None, :] * plant.actuated[:, None]
-    if rng is None:
-        phase = 2 * np.pi * (np.sqrt(5.0) - 1.0) / 2.0 * (np.arange(n)[:, None] * H + np.arange(H)[None, :] + 1) * 3
-        a, b = amp * np.cos(phase), amp * np.sin(phase)
-    else:
-        a, b = amp * rng.normal(size=(n, H)), amp * rng.normal(size=(n, H))
-    return FourierDesign(base_freq_hz, a, b, np.zeros(n))
-
-
-class _TorqueSearch:
-    """Evolution strategy over the drive-torque coefficients; each population is rolled out in one batch.
-
-    Candidates are capped at the torque bound and, with `fill`, scaled until their most used bound is met;
-    the motion's bounds (range, speed, acceleration) are checked on every tenth physics step while searching
-    (with the margin) and on every step at the end.
-    """
-
-    _LIMIT_STRIDE = _CHECK_DENSITY
-
-    def __init__(
-        self,
-        plant: Plant,
-        limits: Limits,
-        model: ParameterModel,
-        base: BaseParameters,
-        *,
-        criterion: str,
-        periods: float,
-        margin: float,
-        criterion_points: int,
-        fill: bool = False,
-    ) -> None:
-        self.plant, self.limits, self.model, self.base = plant, limits, model, base
-        self.fill = fill
-        self.criterion, self.periods, self.bound = criterion, periods, 1.0 - margin
-        self.criterion_points = criterion_points
-        m = plant.mj_model
-        self.dt = float(m.opt.timestep)
-        self.act = np.flatnonzero(plant.actuated)
-        self.act_joint = np.array([int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)], dtype=int)
-        self.datas = [mujoco.MjData(m) for _ in range(min(2, os.cpu_count() or 1))]
-        self.evaluations = 0
-
-    def _rollout(self, designs: list[FourierDesign]) -> tuple[np.ndarray, ...]:
-        """q, dq, ddq, tau: each (batch, nstep, nv), from rest, at every physics step."""
-        m = self.plant.mj_model
-        nstep = int(round(self.periods * designs[0].period_s / self.dt)) + 1
-        t = np.arange(nstep) * self.dt
-        tau = np.stack([d.torque(t) for d in designs])
-        control = tau[:, :, self.act_joint] / m.actuator_gear[:, 0]
-        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        data = mujoco.MjData(m)
-        state0 = np.empty(mujoco.mj_stateSize(m, spec))
-        mujoco.mj_getState(m, data, state0, spec)
-        states, _ = rollout.rollout(m, self.datas, state0[None, :], control)
-        q, dq = states[:, :, 1 : 1 + m.nq], states[:, :, 1 + m.nq : 1 + m.nq + m.nv]
-        ddq = np.diff(dq, axis=1) / self.dt
-        return q[:, :-1], dq[:, :-1], ddq, tau[:, 1:]
-
-    def _stride(self, design: FourierDesign) -> int:
-        return max(1, int(round(design.period_s / self.dt / self.criterion_points)))
-
-    def score(
-        self, designs: list[FourierDesign], *, limit_stride: int, bound: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, float]]]:
-        """Criterion, cond(X'X), bound violation (0 where every bound holds) and ratios of each design."""
-        q, dq, ddq, tau = self._rollout(designs)
-        cs, ls = self._stride(designs[0]), limit_stride
-        values, conds, violation, all_ratios = [], [], [], []
-        for b in range(len(designs)):
-            ratios = self.limits.ratios(q[b, ::ls], dq[b, ::ls], ddq[b, ::ls], tau[b, ::ls])
-            A = self.base.columns(self.model.regressor(q[b, ::cs], dq[b, ::cs], ddq[b, ::cs]))
-            A = A.reshape(-1, A.shape[-1])
-            _check_columns(A, self.base, self.plant)
-            values.append(evaluate_criterion(self.criterion, A)[0])
-            conds.append(_cond_xtx(A))
-            violation.append(max(0.0, max(ratios.values()) - bound))
-            all_ratios.append(ratios)
-        self.evaluations += len(designs)
-        return np.array(values), np.array(conds), np.array(violation), all_ratios
-
-    def _to_torque_bound(self, design: FourierDesign, *, grow: bool = False) -> FourierDesign:
-        """Scaled down (or, with `grow`, up) until the peak drive torque meets the bound."""
-        peak = np.max(np.abs(design.torque(grid(design, 2000))), axis=0)[self.act]
-        if not np.any(peak > 0):
-            return design
-        s = float(np.min(self.bound * self.limits.tau_max[self.act] / np.maximum(peak, 1e-300)))
-        return design.scaled(s if grow else min(1.0, s))
-
-    def _vector(self, design: FourierDesign) -> np.ndarray:
-        return np.concatenate([design.a[self.act].ravel(), design.b[self.act].ravel()])
-
-    def _design(self, z: np.ndarray, like: FourierDesign) -> FourierDesign:
-        a, b = np.zeros_like(like.a), np.zeros_like(like.b)
-        k = len(self.act) * like.harmonics
-        a[self.act], b[self.act] = z[:k].reshape(len(self.act), -1), z[k:].reshape(len(self.act), -1)
-        return FourierDesign(like.base_freq_hz, a, b, like.q0)
-
-    def _filled(self, designs: list[FourierDesign]) -> list[FourierDesign]:
-        """Each design scaled so that its most used bound is just met (one batched rollout; the response is
-        close to linear in the amplitude, and what is not is caught by the scoring rollout)."""
-        viol = self.score(designs, limit_stride=self._LIMIT_STRIDE, bound=0.0)[2]
-        return [
-            self._to_torque_bound(d.scaled(0.97 * self.bound / max(v, 1e-12)))
-            for d, v in zip(designs, viol, strict=True)
-        ]
-
-    def _starts(self, shapes: list[FourierDesign]) -> tuple[FourierDesign, float, list[float]]:
-        """Each shape filled to the limits (or at the torque bound and five halvings), rolled out together."""
-        fractions = 0.5 ** np.arange(1 if self.fill else 6)
-        cands = [self._to_torque_bound(s, grow=True).scaled(float(f)) for s in shapes for f in fractions]
-        if self.fill:
-            cands = self._filled(cands)
-        values, conds, viol, ratios = self.score(cands, limit_stride=self._LIMIT_STRIDE, bound=self.bound)
-        ok = viol == 0
-        if not ok.any():
-            worst = ratios[int(np.argmin(viol))]
-            raise InfeasibleExcitationError(
-                f"no drive torque down to {fractions[-1]:.3g} x the torque bound keeps the simulated motion within "
-                f"the limits: binding constraint {self._binding(worst)} (worst use of each bound: "
-                f"{ {k: round(v, 3) for k, v in worst.items()} })"
-            )
-        best = int(np.argmin(np.where(ok, values, np.inf)))
-        per_start = np.where(ok, conds, np.inf).reshape(len(shapes), len(fractions)).min(axis=1)
-        return cands[best], float(values[best]), per_start.tolist()
-
-    def run(
-        self,
-        shapes: list[FourierDesign],
-        rng: np.random.Generator,
-        *,
-        generations: int,
-        population: int,
-        progress: Callable[[float, str], None] | None = None,
-    ) -> tuple[FourierDesign, list[float], list[float]]:
-        """Search from the best start; returns the best design, each start's cond and the final cond."""
-        best, best_value, start_conds = self._starts(shapes)
-        mean, sigma = self._vector(best), 0.3
-        elite = max(1, population // 4)
-        for generation in range(generations):
-            if progress is not None:
-                progress(generation / generations, f"generation {generation + 1}/{generations}, best {best_value:.4g}")
-            scale = sigma * np.sqrt(np.mean(mean**2))
-            cands = [
-                self._to_torque_bound(self._design(mean + scale * rng.normal(size=mean.shape), best))
-                for _ in range(population)
-            ]
-            if self.fill:
-                cands = self._filled(cands)
-            values, _, viol, _ = self.score(cands, limit_stride=self._LIMIT_STRIDE, bound=self.bound)
-            order = np.lexsort((values, viol))
-            if viol[order[0]] == 0 and values[order[0]] < best_value:
-                best, best_value, sigma = cands[order[0]], float(values[order[0]]), sigma * 1.3
-            else:
-                sigma *= 0.7
-            mean = np.mean([self._vector(cands[i]) for i in order[:elite]], axis=0)
-        best = self._verified(best)
-        if progress is not None:
-            progress(1.0, f"{generations} generations, best {best_value:.4g}")
-        return best, start_conds, [float(self.score([best], limit_stride=1, bound=1.0)[1][0])]
-
-    def _verified(self, design: FourierDesign) -> FourierDesign:
-        """The design, shrunk where needed until every bound holds on every physics step."""
-        if self.score([design], limit_stride=1, bound=1.0)[2][0] == 0:
-            return design
-        fractions = 0.98 ** np.arange(1, 17)
-        cands = [design.scaled(float(f)) for f in fractions]
-        _, _, viol, ratios = self.score(cands, limit_stride=1, bound=1.0)
-        ok = np.flatnonzero(viol == 0)
-        if ok.size == 0:
-            raise InfeasibleExcitationError(
-                f"the optimised drive torque breaks a limit on the dense grid even at {fractions[-1]:.2f} x its "
-                f"amplitude: binding constraint {self._binding(ratios[-1])}"
-            )
-        return cands[int(ok[0])]
-
-    def _binding(self, ratios: dict[str, float]) -> str:
-        empty = np.zeros((0, self.plant.nv))
-        return self.limits.binding(ratios, empty, empty)
-
-    def check(self, design: FourierDesign) -> tuple[dict[str, float], np.ndarray]:
-        """Ratios on every physics step and the stacked base regressor of the design's rollout."""
-        q, dq, ddq, tau = self._rollout([design])
-        cs = self._stride(design)
-        ratios = self.limits.ratios(q[0], dq[0], ddq[0], tau[0])
-        return ratios, self.base.columns(self.model.regressor(q[0, ::cs], dq[0, ::cs], ddq[0, ::cs]))
