@@ -19,8 +19,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from envs.dataset import atomic_write
 from envs.measured import read_many, split_train_validation
-from envs.plant import load_plant
-from harness.results import to_jsonable, write_json
+from envs.plant import Plant, load_plant
+from harness.record import record_diagnosis
+from harness.results import run_job, to_jsonable, write_json
 from identify.diagnose import (
     CANDIDATE_EFFECTS,
     Diagnosis,
@@ -69,6 +70,15 @@ def _paths(cfg: DictConfig) -> list[Path]:
     return [Path(str(p)) for p in items]
 
 
+def _band_hz(cfg: DictConfig) -> float | None:
+    """The analysis band [Hz]: `diagnose.band_hz` when set, else the data config's `band_hz` (a property of the
+    hardware the logs come from, such as the DFKI arm's structural vibration), else None (no band)."""
+    band = cfg.diagnose.get("band_hz")
+    if band is None:
+        band = cfg.data.get("band_hz")
+    return float(band) if band is not None else None
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content."""
     opts = cfg.diagnose
@@ -112,7 +122,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
         window_s=float(opts.window_s),
         references=references,
-        band_hz=float(opts.band_hz) if opts.band_hz is not None else None,
+        band_hz=_band_hz(cfg),
         record_offsets=bool(opts.get("record_offsets", False)),
     )
     mjcf_name = f"{plant.name}_calibrated.xml"
@@ -121,19 +131,21 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     payload["split"] = split.describe()
     payload["repairs"] = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
     payload["config"] = OmegaConf.to_container(cfg, resolve=True)
-    _write_outputs(out, result, payload, mjcf_name, record=bool(opts.get("recording", True)))
+    _write_outputs(out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)))
     print(_summary(payload))
     print(f"outputs in {out}")
     return to_jsonable(payload)
 
 
-def _write_outputs(out: Path, result: Diagnosis, payload: dict[str, Any], mjcf_name: str, *, record: bool) -> None:
+def _write_outputs(
+    out: Path, plant: Plant, result: Diagnosis, payload: dict[str, Any], mjcf_name: str, *, record: bool
+) -> None:
     """The recording, the calibrated MJCF, then diagnosis.json (its presence means a finished run)."""
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     steps: list[tuple[Path, Callable[[Path], None]]] = []
     if record:
-        steps.append((out / "diagnosis.rrd", lambda p: _record(p, result)))
+        steps.append((out / "diagnosis.rrd", lambda p: record_diagnosis(p, plant, result, _findings_markdown(result))))
     steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
     steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
     try:
@@ -144,30 +156,6 @@ def _write_outputs(out: Path, result: Diagnosis, payload: dict[str, Any], mjcf_n
         for path in written:
             path.unlink(missing_ok=True)
         raise
-
-
-def _record(path: Path, result: Diagnosis) -> None:
-    import rerun as rr
-
-    from harness.record import log_joint_series, save_recording
-
-    s = result.series
-
-    def fill(rec: rr.RecordingStream) -> None:
-        t, ts = s["time"], s["sim_time"]
-        for j, name in enumerate(s["joint_names"]):
-            for kind in ("measured", "nominal", "calibrated"):
-                log_joint_series(rec, f"joints/{name}/tau/{kind}", t, s[f"tau_{kind}"][:, j])
-            for kind in ("nominal", "calibrated"):
-                log_joint_series(
-                    rec, f"joints/{name}/residual/{kind}", t, s["tau_measured"][:, j] - s[f"tau_{kind}"][:, j]
-                )
-            log_joint_series(rec, f"joints/{name}/q/measured", t, s["q_measured"][:, j])
-            log_joint_series(rec, f"joints/{name}/q/simulated_nominal", ts, s["q_nominal"][:, j])
-            log_joint_series(rec, f"joints/{name}/q/simulated_calibrated", ts, s["q_calibrated"][:, j])
-        rec.log("findings", rr.TextDocument(_findings_markdown(result), media_type="text/markdown"), static=True)
-
-    save_recording(path, "sysid-diagnose", fill)
 
 
 def _findings_markdown(result: Diagnosis) -> str:
@@ -197,7 +185,7 @@ def _summary(payload: dict[str, Any]) -> str:
 @hydra.main(config_path=str(CONF_DIR), config_name="diagnose", version_base=None)
 def main(cfg: DictConfig) -> None:
     """Console entry point `sysid-diagnose`."""
-    run(cfg)
+    run_job(run, cfg)
 
 
 if __name__ == "__main__":

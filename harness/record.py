@@ -130,3 +130,51 @@ def _excitation_markdown(ex: dict[str, Any]) -> str:
         + ", ".join(f"{k} {v:.2f}" for k, v in ex["limit_ratios"].items())
     )
     return "\n".join(lines)
+
+
+def diagnosis_blueprint(joint_names: tuple[str, ...]) -> rrb.Blueprint:
+    """Layout of a diagnosis recording: per joint, torque (measured, nominal, calibrated), the residuals and
+    the re-started simulations against the measured angle; the robot; the findings."""
+    joint_views = [
+        rrb.Vertical(
+            rrb.TimeSeriesView(origin=f"/joints/{j}/tau", name=f"{j}: torque measured / nominal / calibrated"),
+            rrb.TimeSeriesView(origin=f"/joints/{j}/residual", name=f"{j}: residual (measured - model)"),
+            rrb.TimeSeriesView(origin=f"/joints/{j}/q", name=f"{j}: q measured vs re-started simulation"),
+        )
+        for j in joint_names
+    ]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial3DView(origin="/robot", name="measured motion"),
+                rrb.TextDocumentView(origin="/findings", name="findings and models"),
+            ),
+            rrb.Horizontal(*joint_views),
+            column_shares=[2, 3],
+        ),
+        collapse_panels=True,
+    )
+
+
+def record_diagnosis(path: Path, plant: Plant, result: Any, findings_markdown: str) -> None:
+    """Write the diagnosis recording from a `Diagnosis`'s series (time, torques, residuals, simulations)."""
+    s = result.series
+    names = tuple(s["joint_names"])
+
+    def fill(rec: rr.RecordingStream) -> None:
+        rec.send_blueprint(diagnosis_blueprint(names))
+        t, ts = s["time"], s["sim_time"]
+        log_robot(rec, plant, t, s["q_measured"])
+        for j, name in enumerate(names):
+            for kind in ("measured", "nominal", "calibrated"):
+                log_joint_series(rec, f"joints/{name}/tau/{kind}", t, s[f"tau_{kind}"][:, j])
+            for kind in ("nominal", "calibrated"):
+                log_joint_series(
+                    rec, f"joints/{name}/residual/{kind}", t, s["tau_measured"][:, j] - s[f"tau_{kind}"][:, j]
+                )
+            log_joint_series(rec, f"joints/{name}/q/measured", t, s["q_measured"][:, j])
+            log_joint_series(rec, f"joints/{name}/q/simulated_nominal", ts, s["q_nominal"][:, j])
+            log_joint_series(rec, f"joints/{name}/q/simulated_calibrated", ts, s["q_calibrated"][:, j])
+        rec.log("findings", rr.TextDocument(findings_markdown, media_type="text/markdown"), static=True)
+
+    save_recording(path, "sysid-diagnose", fill)

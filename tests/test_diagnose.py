@@ -234,3 +234,44 @@ def test_record_offsets_absorb_offsets_that_change_between_recordings(tmp_path: 
     assert dg.verdict == "no_discrepancy", [f.to_dict() for f in dg.findings]
     offsets = [r["shoulder"] for r in dg.info["record_offsets"]]
     np.testing.assert_allclose(offsets, [0.03, 0.07], atol=0.005)
+
+
+def _mass_matrix(plant: Plant, q: np.ndarray) -> np.ndarray:
+    """M(q) from inverse dynamics at rest: tau(q, 0, e_k) - tau(q, 0, 0) is column k."""
+    from identify.diagnose.torque import model_torque
+
+    nv = plant.nv
+    qs, zeros = np.repeat(q[None], nv + 1, axis=0), np.zeros((nv + 1, nv))
+    ddq = np.vstack([np.eye(nv), np.zeros((1, nv))])
+    tau = model_torque(plant, qs, zeros, ddq)
+    return (tau[:nv] - tau[nv]).T
+
+
+def test_rotor_coupling_is_the_off_diagonal_inertia_in_the_calibrated_mjcf(tmp_path: Path) -> None:
+    # the elbow motor's rotor (Ir = 6.0719e-5 kg m^2, gr = 6) turns on link 1: M12 += Ir gr, nothing else
+    from identify.derivatives import States
+    from identify.diagnose.calibrate import Extension, calibrated_xml, extension_from_fit
+    from identify.diagnose.candidates import candidates, rotor_chain, signals
+    from identify.diagnose.select import LinearFit, Step
+
+    plant = load_plant("two_link")
+    assert rotor_chain(plant, 0) is None
+    chain = rotor_chain(plant, 1)
+    assert chain is not None and chain[1] == 0 and list(chain[0]) == [1.0, 0.0]
+    (cand,) = candidates(plant, ["rotor_coupling"], np.random.default_rng(0))
+    assert (cand.effect, cand.target) == ("rotor_coupling", "elbow")
+    rng = np.random.default_rng(1)
+    q, dq, ddq = rng.normal(size=(30, 2)), rng.normal(size=(30, 2)), rng.normal(size=(30, 2))
+    data = Dataset(np.arange(30) * 0.01, q, np.zeros((30, 2)), plant.joint_names, np.ones(2, bool))
+    cols = cand.build(signals(plant, data, States(q, dq, ddq, np.ones(30, bool))))
+    np.testing.assert_allclose(cols[:, :, 0], ddq[:, ::-1])  # ddq2 in tau1, ddq1 in tau2
+    rho = 6.0719e-5 * 6
+    step = Step(cand, np.array([0]), 0.0, 0.0, 0.0)
+    ext = extension_from_fit(plant, [step], LinearFit(np.array([rho]), np.zeros((1, 1)), np.zeros(2)), np.arange(0))
+    assert isinstance(ext, Extension) and ext.rotor_coupling[1] == rho
+    xml = calibrated_xml(plant, ext)
+    assert 'name="sysid_rotor_coupling_elbow"' in xml
+    calibrated = plant_from_xml(xml, "two_link_calibrated", tmp_path)
+    for q0 in ([0.0, 0.0], [0.7, -1.2], [2.0, 2.5]):
+        diff = _mass_matrix(calibrated, np.array(q0)) - _mass_matrix(plant, np.array(q0))
+        np.testing.assert_allclose(diff, [[0.0, rho], [rho, 0.0]], atol=1e-8)  # the MJCF text keeps 6 digits

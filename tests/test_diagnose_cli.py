@@ -7,13 +7,13 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import compose_config, rrd_rows
 from test_diagnose import simulate
 
 import harness.diagnose as cli
 from envs.dataset import write_csv
 from envs.effects import HiddenEffect
 from envs.plant import load_plant
+from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
 OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml")
 
@@ -56,6 +56,8 @@ def test_diagnose_writes_the_three_files(csv_files: list[Path], tmp_path: Path) 
     assert rows["/joints/swing/tau/measured"] > 100
     assert rows["/joints/swing/q/simulated_calibrated"] > 100
     assert "/findings" in rows
+    assert rows["/robot/pendulum"] > 10  # the measured motion replayed in 3D
+    assert rrd_has_blueprint(tmp_path / "diagnosis.rrd")
 
 
 def test_single_file_is_split_by_time_block(csv_files: list[Path], tmp_path: Path) -> None:
@@ -82,3 +84,16 @@ def test_unknown_effect_fails_before_any_work(csv_files: list[Path], tmp_path: P
     with pytest.raises(ValueError, match="valid choices"):
         cli.run(_config(csv_files, tmp_path, "diagnose.effects=[backlash]"))
     assert not any(tmp_path.iterdir())
+
+
+def test_band_comes_from_the_data_config_unless_set() -> None:
+    # the DFKI arm's 4 Hz band belongs to its data config: `sysid-diagnose data=dfki_double_pendulum` needs no
+    # other override, and `diagnose.band_hz` still wins
+    dfki = compose_config(["system=two_link", "data=dfki_double_pendulum"], config_name="diagnose")
+    assert cli._band_hz(dfki) == 4.0
+    assert list(dfki.data.validation) == ["trajectory_01.csv"]
+    override = compose_config(
+        ["system=two_link", "data=dfki_double_pendulum", "diagnose.band_hz=2"], config_name="diagnose"
+    )
+    assert cli._band_hz(override) == 2.0
+    assert cli._band_hz(compose_config(["system=pendulum"], config_name="diagnose")) is None

@@ -415,5 +415,6 @@ def test_dfki_logs_read_through_the_data_config(shared_data: Path, plant: Plant,
     assert rates["trajectory_00"] == pytest.approx(500, rel=1e-3)
     assert rates["trajectory_12"] == pytest.approx(616, rel=0.01)
     split = split_train_validation(datasets, validation=list(cfg.validation))
-    assert [Path(d.source).stem for d in split.validation] == ["trajectory_02", "trajectory_12"]
+    assert [Path(d.source).stem for d in split.validation] == ["trajectory_01"]
+    assert sorted(Path(d.source).stem for d in split.train) == [f"trajectory_{k}" for k in ("00", "02", "05", "12")]
     OmegaConf.load(CONF_DATA / "csv.yaml")  # the format's config parses too

@@ -13,6 +13,11 @@ Mapping (what each finding becomes in `<system>_calibrated.xml`):
                                    the measured angle
     torque_offset, torque_gain     the actuator becomes `general` with gainprm = 1/gain and biasprm =
                                    -offset/gain: driven by the measured torque as ctrl, it applies the true one
+    rotor_coupling                 the off-diagonal inertia rho = Ir gr between joint j and its ancestors (rotor
+                                   on the parent link) has no joint attribute; it is written exactly as rho
+                                   about the axis added to the child body's inertia, rho taken from the parent
+                                   body's and from joint j's armature (the mass matrix then gains rho on
+                                   M[ancestor, j] only), and recorded as a `numeric` sysid_rotor_coupling_<joint>
     time_delay                     no MuJoCo counterpart (the measured torque lags the applied one, so the
                                    applied torque lies ahead of the log): a `numeric` sysid_time_delay_<joint>
 """
@@ -26,6 +31,7 @@ import numpy as np
 from scipy import optimize
 
 from envs.plant import Plant
+from identify.diagnose.candidates import rotor_chain
 from identify.diagnose.select import LinearFit, Step
 from identify.diagnose.torque import model_torque
 from identify.estimators.physical import body_from_log_cholesky, log_cholesky_from_body
@@ -58,6 +64,8 @@ class Extension:
         torque_offset: reported torque at zero applied torque [N m].
         torque_gain: reported over applied torque [1].
         delay_s: the reported torque lags the applied one by this much [s].
+        rotor_coupling: off-diagonal rotor inertia between joint j and its ancestors [kg m^2] (already
+            folded into theta_delta and armature; kept to be reported).
     """
 
     armature: np.ndarray
@@ -70,6 +78,7 @@ class Extension:
     torque_offset: np.ndarray
     torque_gain: np.ndarray
     delay_s: np.ndarray
+    rotor_coupling: np.ndarray = field(default_factory=lambda: np.zeros(0))
     notes: list[str] = field(default_factory=list)
 
     @classmethod
@@ -86,6 +95,7 @@ class Extension:
             torque_offset=_zeros(n),
             torque_gain=np.ones(n),
             delay_s=_zeros(n),
+            rotor_coupling=_zeros(n),
         )
 
 
@@ -126,6 +136,9 @@ def extension_from_fit(
             ext.theta_delta[base_independent] += full
             continue
         j = names.index(c.target)
+        if c.effect == "rotor_coupling":
+            _add_rotor_coupling(plant, ext, j, float(full[0]))
+            continue
         if c.effect == "joint_stiffness":
             k_total = plant.stiffness[j] + full[0]
             ext.stiffness[j] += full[0]
@@ -145,6 +158,27 @@ def extension_from_fit(
         elif target is not None:
             target[j] += full[0]
     return ext
+
+
+def _add_rotor_coupling(plant: Plant, ext: Extension, j: int, rho: float) -> None:
+    """M[i, j] += rho for joint j's ancestors i, in inertials and armature (see the module docstring)."""
+    chain = rotor_chain(plant, j)
+    assert chain is not None, "rotor_coupling is only a candidate where rotor_chain holds"
+    m, parent = plant.mj_model, chain[1]
+    for body, joint, sign in ((j, j, 1.0), (parent, parent, -1.0)):
+        a = np.asarray(m.jnt_axis[joint], dtype=float)
+        outer = sign * rho * np.outer(a, a)
+        # INERTIAL_SYMBOLS order: XX, XY, YY, XZ, YZ, ZZ after m, MX, MY, MZ
+        ext.theta_delta[10 * body + 4 : 10 * body + 10] += [
+            outer[0, 0],
+            outer[0, 1],
+            outer[1, 1],
+            outer[0, 2],
+            outer[1, 2],
+            outer[2, 2],
+        ]
+    ext.armature[j] -= rho
+    ext.rotor_coupling[j] += rho
 
 
 def _inertial(theta: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -277,7 +311,10 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
     spec.compiler.balanceinertia = True  # a safety net for the six digits the MJCF text keeps
     for j, name in enumerate(plant.joint_names):
         joint = spec.joint(name)
-        joint.armature = float(plant.armature[j] + ext.armature[j])
+        armature = plant.armature[j] + ext.armature[j]
+        if armature < 0:
+            ext.notes.append(f"{name}: armature {armature:.4g} kg m^2 < 0 after the corrections; set to 0")
+        joint.armature = float(max(armature, 0.0))
         damping = np.array(joint.damping, dtype=float)
         damping[0] = plant.damping[j] + ext.damping[j]
         joint.damping = damping
@@ -330,6 +367,10 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
         act.biasprm[0] = -off / (gain * float(m.actuator_gear[a, 0]))
     for j, name in enumerate(plant.joint_names):
+        if ext.rotor_coupling.size and ext.rotor_coupling[j] != 0:
+            numeric = spec.add_numeric()
+            numeric.name = f"sysid_rotor_coupling_{name}"
+            numeric.data = [float(ext.rotor_coupling[j])]
         if ext.delay_s[j] != 0:
             numeric = spec.add_numeric()
             numeric.name = f"sysid_time_delay_{name}"

@@ -12,8 +12,16 @@ times unknown coefficients (one group of columns per effect and joint or body):
     torque_gain       tau_nominal_j        (actuated only)     1 + c (measured / true)    actuator `gainprm`
     time_delay        -d tau_nominal_j/dt  (actuated only)     c (s)                      custom numeric
     joint_offset      -d tau_nominal/d q_j (every row)         c (rad)                    joint `ref`
+    rotor_coupling    ddq_i in tau_j, ddq_j in tau_i (i: the   rho = Ir gr (kg m^2)       child and parent `inertial`,
+                      ancestor joints of j, parallel axes)                               joint `armature` (exact)
     payload           the body's identifiable inertial cols    added mass (kg)            body `inertial`
     rigid_body        the base rigid-body columns              RMS torque change (N m)    every `inertial`
+
+`rotor_coupling` is the rotor of the motor that drives joint j, its stator on the parent link: the rotor turns
+at (the parent's angular velocity + gr dq_j), so its kinetic energy 1/2 Ir (w_parent + gr dq_j)^2 adds the
+`armature` Ir gr^2 on joint j (the nominal MJCF has it) and an off-diagonal inertia Ir gr between joint j and
+every ancestor joint, which no joint attribute holds (the DFKI double pendulum's elbow motor sits at the end
+of link 1: M12 += Ir gr). The sign of rho follows the gear's sense of rotation (the DFKI authors write -gr Ir).
 
 Sensor-side effects are linearised about the nominal torque: exact to first order in their size, which is
 what decides between candidates; the calibrated model then applies them exactly.
@@ -24,6 +32,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 from scipy import signal as sp_signal
 
@@ -34,7 +43,7 @@ from identify.derivatives import States
 from identify.diagnose.torque import model_torque, torque_jacobian_q
 from identify.model import ParameterModel, rigid_body_regressor
 
-__all__ = ["CANDIDATE_EFFECTS", "Candidate", "Signals", "candidates", "signals", "stack_signals"]
+__all__ = ["CANDIDATE_EFFECTS", "Candidate", "Signals", "candidates", "rotor_chain", "signals", "stack_signals"]
 
 
 @dataclass(frozen=True)
@@ -241,6 +250,55 @@ def _joint_offset(plant: Plant, j: int) -> Candidate:
     return Candidate("joint_offset", plant.joint_names[j], "rad", "joint ref", (f"dq0_{j + 1}",), build, _first)
 
 
+def rotor_chain(plant: Plant, j: int) -> tuple[np.ndarray, int] | None:
+    """The joints whose rows a rotor on joint j's parent link couples to, and the parent body.
+
+    Returns:
+        ((nv,) +-1 on joint j's ancestor joints whose axes are parallel to j's (the sign of their dot
+        product), 0 elsewhere; the parent body's index), or None when joint j has no ancestor joint, or an
+        ancestor's axis is not parallel to j's, or a body carries more than one joint (the coupling is then
+        not a constant inertia).
+    """
+
+    m = plant.mj_model
+    if m.njnt != plant.nv or len(set(m.jnt_bodyid.tolist())) != m.njnt:
+        return None
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    body_joint = {int(b): k for k, b in enumerate(m.jnt_bodyid)}
+    sign = np.zeros(plant.nv)
+    body, parent = int(m.body_parentid[m.jnt_bodyid[j]]), -1
+    while body > 0:
+        if body in body_joint:
+            i = body_joint[body]
+            dot = float(d.xaxis[i] @ d.xaxis[j])
+            if abs(abs(dot) - 1) > 1e-9:
+                return None
+            sign[i] = np.sign(dot)
+            parent = i if parent < 0 else parent
+        body = int(m.body_parentid[body])
+    return (sign, parent) if parent >= 0 else None
+
+
+def _rotor_couplings(plant: Plant) -> list[Candidate]:
+    out = []
+    for j, name in enumerate(plant.joint_names):
+        chain = rotor_chain(plant, j)
+        if chain is None:
+            continue
+        sign = chain[0]
+
+        def build(s: Signals, j: int = j, sign: np.ndarray = sign) -> np.ndarray:
+            col = np.zeros((s.n_samples, plant.nv, 1))
+            col[:, :, 0] = sign[None, :] * s.ddq[:, j : j + 1]
+            col[:, j, 0] = s.ddq @ sign
+            return col
+
+        counterpart = "child and parent inertial, joint armature; custom numeric"
+        out.append(Candidate("rotor_coupling", name, "kg m^2", counterpart, (f"Irgr{j + 1}",), build, _first))
+    return out
+
+
 def _independent(W: np.ndarray, order: list[int], tol: float = 1e-7) -> list[int]:
     """Columns of W (rows, p), taken in `order`, that are not in the span of the ones kept before them."""
     norms = np.linalg.norm(W, axis=0)
@@ -300,6 +358,7 @@ CANDIDATE_EFFECTS: dict[str, Callable[[Plant, np.random.Generator], list[Candida
     "joint_offset": lambda p, rng: [_joint_offset(p, j) for j in range(p.nv)],
     "joint_stiffness": lambda p, rng: [_stiffness(p, j) for j in range(p.nv)],
     "payload": _payloads,
+    "rotor_coupling": lambda p, rng: _rotor_couplings(p),
     "rigid_body": _rigid_body,
     "time_delay": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "time_delay"],
     "torque_gain": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "torque_gain"],

@@ -46,6 +46,7 @@ DEFAULT_EFFECTS = (
     "joint_stiffness",
     "payload",
     "rigid_body",
+    "rotor_coupling",
     "time_delay",
     "torque_gain",
     "torque_offset",
