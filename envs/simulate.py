@@ -28,16 +28,17 @@ class Reference(Protocol):
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
-def inverse_dynamics(plant: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+def inverse_dynamics(plant: Plant | mujoco.MjModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
     """MuJoCo's inverse dynamics (rigid body, armature, passive and active constraint forces).
 
     Args:
+        plant: the plant, or a MuJoCo model (a variant being evaluated).
         q, dq, ddq: (N, nv) joint positions [rad], velocities [rad/s], accelerations [rad/s^2].
 
     Returns:
         (N, nv) joint torques [N m].
     """
-    m = plant.mj_model
+    m = plant.mj_model if isinstance(plant, Plant) else plant
     d = mujoco.MjData(m)
     out = np.empty_like(q)
     for k in range(len(q)):

@@ -8,15 +8,10 @@ import numpy as np
 import pytest
 
 from envs.dataset import Dataset
-from envs.plant import load_plant
 from envs.sensors import SensorModel
-from excitation.limits import limits_for
-from excitation.registry import design_excitation
-from harness.run import sensor_from_config, simulate_design
-from identify.base import base_parameters
+from harness.run import design_from_config, experiment_from_config, simulate_design
 from identify.derivatives import derive_states
 from identify.estimators import estimate
-from identify.model import ParameterModel
 from identify.problem import build_problem
 from tests.conftest import compose_config
 
@@ -24,22 +19,10 @@ from tests.conftest import compose_config
 @pytest.mark.slow
 @pytest.mark.parametrize("estimator", ["ols", "wls"])
 def test_reported_std_matches_spread_over_50_seeds(estimator: str) -> None:
-    cfg = compose_config(["system=two_link"])
-    plant = load_plant("two_link")
-    model = ParameterModel(plant, tuple(cfg.system.effects))
-    base = base_parameters(model, np.random.default_rng(0))
-    limits = limits_for(plant, velocity=cfg.system.limits.velocity, acceleration=cfg.system.limits.acceleration)
-    design = design_excitation(
-        "default",
-        plant,
-        limits,
-        model=model,
-        harmonics=5,
-        base_freq_hz=0.1,
-        torque_driven=False,
-        rng=np.random.default_rng(0),
-    )
-    sensor = sensor_from_config(cfg, plant)
+    cfg = compose_config(["system=two_link", "excitation=default"])
+    exp = experiment_from_config(cfg, np.random.default_rng(0))
+    plant, model, base, sensor = exp.plant, exp.model, exp.base, exp.sensor
+    design = design_from_config(cfg, exp, "default", np.random.default_rng(0))
     # the motion does not depend on the sensor noise: simulate once, measure it 50 times
     clean = simulate_design(
         plant, design, cfg, SensorModel(sample_rate_hz=sensor.sample_rate_hz), np.random.default_rng(0), 2.0

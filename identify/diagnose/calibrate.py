@@ -31,6 +31,7 @@ import numpy as np
 from scipy import optimize
 
 from envs.plant import Plant
+from envs.simulate import inverse_dynamics
 from identify.diagnose.candidates import rotor_chain
 from identify.diagnose.select import LinearFit, Step
 from identify.diagnose.torque import model_torque
@@ -424,7 +425,7 @@ def frictionloss_mapping(
         return {}
     m0 = mujoco.MjModel.from_xml_path(str(calibrated.path))
     m0.dof_frictionloss[:] = 0.0
-    with_f, without = _inverse(m, q, dq, ddq), _inverse(m0, q, dq, ddq)
+    with_f, without = inverse_dynamics(m, q, dq, ddq), inverse_dynamics(m0, q, dq, ddq)
     out: dict[str, dict[str, float]] = {}
     for j, name in enumerate(calibrated.joint_names):
         fc = float(m.dof_frictionloss[j])
@@ -440,14 +441,4 @@ def frictionloss_mapping(
             "saturated_fraction": float(np.mean(np.abs(np.abs(f_mj) - fc) < 0.05 * fc)),
             "transition_speed": float(np.percentile(np.abs(dq[under, j]), 90)) if np.any(under) else 0.0,
         }
-    return out
-
-
-def _inverse(m: mujoco.MjModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-    d = mujoco.MjData(m)
-    out = np.empty_like(q)
-    for k in range(len(q)):
-        d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
-        mujoco.mj_inverse(m, d)
-        out[k] = d.qfrc_inverse
     return out
