@@ -34,6 +34,7 @@ from envs.simulate import simulate_tracking
 from excitation.fourier import FourierDesign
 from excitation.limits import limits_for
 from excitation.registry import design_excitation
+from harness.progress import printer
 from harness.run import CONF_DIR
 from identify.base import BaseParameters, base_parameters
 from identify.derivatives import derive_states
@@ -307,8 +308,12 @@ def main(*, runs_scale: float | None = None, workers: int | None = None) -> dict
             tasks += [(system, sigma_q, (name,), list(range(n_slow)), None) for name in SLOW]
         n_wide = max(int(WIDE_RUNS * scale), 3)
         tasks += [(system, 1.7e-4, ("ols", "iv"), list(range(n_wide)), WIDE_CUTOFF_HZ)]
+    progress = printer("bench estimators", every_s=5.0)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        results = list(pool.map(_runs, tasks))
+        results = []
+        for i, out in enumerate(pool.map(_runs, tasks)):
+            results.append(out)
+            progress((i + 1) / len(tasks), f"{i + 1}/{len(tasks)} Monte Carlo tasks")
         exact = list(pool.map(_exact_ols, SYSTEMS, [max(int(EXACT_RUNS * scale), 20)] * len(SYSTEMS)))
     merged: dict[tuple[str, str, float, float | None], list[dict[str, Any]]] = {}
     for (system, sigma_q, _, _, cutoff), out in zip(tasks, results, strict=True):
