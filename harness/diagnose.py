@@ -17,11 +17,13 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from envs.dataset import atomic_write
-from envs.measured import read_many, split_train_validation
+from envs.dataset import Dataset, atomic_write
+from envs.measured import check_excitation, read_many, split_train_validation
 from envs.plant import Plant, load_plant
 from harness.record import record_diagnosis
 from harness.results import run_job, to_jsonable, write_json
+from identify.base import base_parameters
+from identify.derivatives import derive_states
 from identify.diagnose import (
     CANDIDATE_EFFECTS,
     Diagnosis,
@@ -32,6 +34,7 @@ from identify.diagnose import (
     diagnose,
     load_author_model,
 )
+from identify.model import ParameterModel
 
 __all__ = ["CONF_DIR", "main", "reference_models", "run"]
 
@@ -111,6 +114,10 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if references and plant.nv != 2:
         references = {}
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
+    if "rigid_body" in opts.effects:
+        _check_training_excitation(
+            plant, split.train, tuple(cfg.system.effects), str(opts.derivatives), derivative_options
+        )
     result = diagnose(
         plant,
         split.train,
@@ -135,6 +142,21 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     print(_summary(payload))
     print(f"outputs in {out}")
     return to_jsonable(payload)
+
+
+def _check_training_excitation(
+    plant: Plant, train: tuple[Dataset, ...], effects: tuple[str, ...], method: str, options: dict[str, Any]
+) -> None:
+    """Refuse training data that do not excite the rigid-body (and configured effect) base parameters the
+    refit will estimate: nothing is fitted on such data silently."""
+    model = ParameterModel(plant, effects)
+    base = base_parameters(model, np.random.default_rng(0))
+    blocks = []
+    for data in train:
+        states = derive_states(data, method, **options)
+        rows = states.valid
+        blocks.append(base.columns(model.regressor(states.q[rows], states.dq[rows], states.ddq[rows])))
+    check_excitation(np.concatenate(blocks), names=base.names, source=", ".join(Path(d.source).name for d in train))
 
 
 def _write_outputs(

@@ -6,12 +6,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_diagnose import simulate
 
 import harness.diagnose as cli
-from envs.dataset import write_csv
+from envs.dataset import Dataset, write_csv
 from envs.effects import HiddenEffect
+from envs.errors import DataError
 from envs.plant import load_plant
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
@@ -97,3 +99,19 @@ def test_band_comes_from_the_data_config_unless_set() -> None:
     )
     assert cli._band_hz(override) == 2.0
     assert cli._band_hz(compose_config(["system=pendulum"], config_name="diagnose")) is None
+
+
+def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
+    """A pendulum barely swinging about its rest position cannot tell its inertia from its mass moments."""
+    plant = load_plant("pendulum")
+    t = np.arange(0.0, 4.0, 0.002)
+    q = 1e-3 * np.sin(2 * np.pi * 0.5 * t)[:, None]
+    tau = np.zeros_like(q)
+    still = Dataset(time=t, q=q, tau=tau, joint_names=plant.joint_names, actuated=plant.actuated)
+    paths = [tmp_path / "a.csv", tmp_path / "b.csv"]
+    for p in paths:
+        write_csv(still, p)
+    out = tmp_path / "out"
+    with pytest.raises(DataError, match=r"a\.csv.*excite"):
+        cli.run(_config(paths, out))
+    assert not out.exists() or not any(out.iterdir())
