@@ -11,18 +11,12 @@ from envs.errors import (
     RankDeficientError,
     SysIdError,
 )
-from envs.measured import (
-    ExcitationCheck,
-    Repair,
-    Split,
-    check_excitation,
-    read_many,
-    read_measured,
-    split_train_validation,
-)
+from envs.excitation_check import ExcitationCheck, check_excitation
+from envs.measured import Repair, read_many, read_measured
 from envs.plant import MJCF_DIR, SYSTEMS, Plant, load_plant, mjcf_path
 from envs.sensors import SensorModel, quantise
 from envs.simulate import Reference, inverse_dynamics, simulate_open_loop, simulate_tracking
+from envs.split import Split, split_train_validation
 
 __all__ = [
     "HIDDEN_EFFECTS",

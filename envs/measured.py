@@ -1,4 +1,4 @@
-"""Measured joint data from CSV files: column mapping, input checks and repairs, and the train/validation split.
+"""Measured joint data from CSV files: column mapping, input checks and repairs.
 
 `read_measured` reads one CSV with a header row (the measured-data format of DESIGN.md, or any other layout
 through a column mapping) into a `Dataset` of a plant's joints. Every message names the file, the column (the
@@ -15,9 +15,8 @@ header is line 1). Nothing questionable reaches a fit silently:
   uniform grid at the median step, which the derivative filters need). `repair=False` and `resample=False`
   turn the last three into refusals.
 
-`check_excitation` tells whether a (base) regressor built from the data excites every parameter asked for;
-`split_train_validation` holds data out by file, or by a contiguous block of time for a single file, never by
-random samples.
+`envs.excitation_check.check_excitation` tells whether a regressor built from the data excites every
+parameter asked for; `envs.split.split_train_validation` holds data out by file or by a block of time.
 """
 
 from __future__ import annotations
@@ -37,15 +36,7 @@ from envs.dataset import Dataset
 from envs.errors import DataError
 from envs.plant import Plant
 
-__all__ = [
-    "ExcitationCheck",
-    "Repair",
-    "Split",
-    "check_excitation",
-    "read_many",
-    "read_measured",
-    "split_train_validation",
-]
+__all__ = ["Repair", "read_many", "read_measured"]
 
 _REGULAR_TOL = 0.01  # a step within 1 % of the median step is regular (identify.derivatives asks for this)
 _STARTUP_TOL = 0.25  # leading steps off the median by more than 25 % are the logger's start-up
@@ -73,52 +64,6 @@ class Repair:
     column: str
     rows: tuple[int, ...]
     message: str
-
-
-@dataclass(frozen=True)
-class ExcitationCheck:
-    """How well the data excite the parameters of a regressor.
-
-    Attributes:
-        n_equations: rows of the stacked regressor (samples x joints).
-        n_parameters: its columns.
-        rank: numerical rank of the column-normalised regressor.
-        cond: 2-norm condition number of the column-normalised regressor [-] (inf when rank deficient).
-        weakest: names of the parameters in the poorly excited directions (those above `max_cond`, else the
-            least excited one), largest share first.
-    """
-
-    n_equations: int
-    n_parameters: int
-    rank: int
-    cond: float
-    weakest: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class Split:
-    """Training and validation data that share no sample.
-
-    Attributes:
-        train: datasets the fit may use.
-        validation: datasets it never sees.
-        by: `file` (whole files held out) or `time_block` (the last part of a single record held out).
-    """
-
-    train: tuple[Dataset, ...]
-    validation: tuple[Dataset, ...]
-    by: str
-
-    def describe(self) -> dict[str, Any]:
-        """JSON-ready summary: `by`, and per part the source, first and last time [s] and sample count."""
-
-        def part(datasets: tuple[Dataset, ...]) -> list[dict[str, Any]]:
-            return [
-                {"source": d.source, "t_start": float(d.time[0]), "t_end": float(d.time[-1]), "n_samples": d.n_samples}
-                for d in datasets
-            ]
-
-        return {"by": self.by, "train": part(self.train), "validation": part(self.validation)}
 
 
 @dataclass(frozen=True)
@@ -296,122 +241,6 @@ def read_many(
     if errors:
         raise DataError("\n".join(errors))
     return datasets
-
-
-def split_train_validation(
-    datasets: Sequence[Dataset],
-    *,
-    validation_fraction: float = 0.3,
-    validation: Sequence[str] | None = None,
-    min_samples: int = 50,
-) -> Split:
-    """Hold data out for validation: whole files when there are two or more, else the end of the record.
-
-    Args:
-        datasets: one dataset per file, in order.
-        validation: files to hold out, by name, stem or path (two or more files only); None holds out the last
-            round(validation_fraction x files) of them, at least one, leaving at least one to train on.
-        validation_fraction: share held out when `validation` is None: of the files, or, for a single file,
-            of its samples, taken as one contiguous block at its end (the fit's samples all come before).
-        min_samples: fewest samples in each block of a single file.
-
-    Raises:
-        ValueError: a fraction outside (0, 1), no dataset, or `validation` naming a file not given.
-        DataError: a single record too short to split.
-    """
-    if not datasets:
-        raise ValueError("no dataset to split")
-    if not 0.0 < validation_fraction < 1.0:
-        raise ValueError(f"validation_fraction must lie in (0, 1), got {validation_fraction}")
-    if len(datasets) == 1:
-        if validation:
-            raise ValueError("with a single file the validation data are its last block: set validation_fraction")
-        data = datasets[0]
-        cut = int(round(data.n_samples * (1.0 - validation_fraction)))
-        short = min(cut, data.n_samples - cut)
-        if short < min_samples:
-            raise DataError(
-                f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
-                f"block of at least {min_samples} samples each"
-            )
-        return Split((data.slice(0, cut),), (data.slice(cut, data.n_samples),), "time_block")
-    if validation is None:
-        n_val = min(len(datasets) - 1, max(1, int(round(validation_fraction * len(datasets)))))
-        held = set(range(len(datasets) - n_val, len(datasets)))
-    else:
-        held = set()
-        for name in validation:
-            hits = [
-                i for i, d in enumerate(datasets) if str(name) in (d.source, Path(d.source).name, Path(d.source).stem)
-            ]
-            if not hits:
-                given = ", ".join(Path(d.source).name for d in datasets)
-                raise ValueError(f"validation file {name!r} is not among the files read: {given}")
-            held.update(hits)
-        if len(held) == len(datasets):
-            raise ValueError("every file is held out for validation: none is left to fit on")
-    train = tuple(d for i, d in enumerate(datasets) if i not in held)
-    return Split(train, tuple(d for i, d in enumerate(datasets) if i in held), "file")
-
-
-def check_excitation(
-    regressor: np.ndarray,
-    *,
-    names: Sequence[str],
-    source: str = "data",
-    max_cond: float = 1e3,
-    min_equations_per_parameter: int = 10,
-) -> ExcitationCheck:
-    """Refuse data that are too short for, or do not excite, the parameters of a regressor.
-
-    The regressor is column-normalised (so that units do not matter) before its condition number is taken;
-    the parameters named in a refusal are those with the largest share of the least excited direction(s).
-
-    Args:
-        regressor: (N, nv, p) or (M, p) regressor of the parameters to identify (normally the base regressor:
-            `BaseParameters.columns(ParameterModel.regressor(q, dq, ddq))`), on the rows the fit will use.
-        names: (p,) parameter names, for the messages.
-        source: what the data are (a file name), for the messages.
-        max_cond: largest acceptable column-normalised condition number.
-        min_equations_per_parameter: fewest equations (rows) per parameter.
-
-    Raises:
-        DataError: too few equations, a parameter whose column is zero, or a condition number above max_cond.
-    """
-    W = np.asarray(regressor, dtype=float)
-    W = W.reshape(-1, W.shape[-1])
-    m, p = W.shape
-    if len(names) != p:
-        raise ValueError(f"{len(names)} names for a regressor of {p} columns")
-    if not np.all(np.isfinite(W)):
-        raise DataError(f"{source}: the regressor holds NaN or inf (check the derivatives of the data)")
-    if m < min_equations_per_parameter * p:
-        raise DataError(
-            f"{source}: too little data: {m} equations for {p} parameters; at least "
-            f"{min_equations_per_parameter} per parameter ({min_equations_per_parameter * p}) are needed"
-        )
-    norms = np.linalg.norm(W, axis=0)
-    dead = [names[int(c)] for c in np.flatnonzero(norms <= 1e-12 * max(norms.max(), 1e-300))]
-    if dead:
-        raise DataError(f"{source}: the data do not excite {', '.join(dead)} at all (their regressor columns are 0)")
-    s, vt = np.linalg.svd(W / norms, full_matrices=False)[1:]
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    rank = int(np.sum(s > s[0] * max(m, p) * np.finfo(float).eps))
-    weak = s < s[0] / max_cond
-    share = np.sum(vt[weak] ** 2, axis=0) if weak.any() else vt[-1] ** 2  # each parameter's part of the weak space
-    order = np.argsort(share)[::-1]
-    weakest = tuple(names[c] for c in order if share[c] >= 0.1 or c == order[0])
-    check = ExcitationCheck(n_equations=m, n_parameters=p, rank=rank, cond=cond, weakest=weakest)
-    if cond > max_cond:
-        last = np.argsort(vt[-1] ** 2)[::-1][:4]
-        combo = " ".join(f"{vt[-1, c]:+.2f} [{names[c]}]" for c in last if vt[-1, c] ** 2 >= 0.01)
-        raise DataError(
-            f"{source}: too little excitation for the parameters asked for: {int(weak.sum())} direction(s) of the "
-            f"column-normalised regressor are poorly excited (condition number {cond:.3g} > {max_cond:.3g}); "
-            f"weakest: {', '.join(weakest)} (weakest direction {combo}). Use data that move these, or drop them "
-            "from the model"
-        )
-    return check
 
 
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:

@@ -18,8 +18,10 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from envs.dataset import Dataset, atomic_write
-from envs.measured import check_excitation, read_many, split_train_validation
+from envs.excitation_check import check_excitation
+from envs.measured import read_many
 from envs.plant import Plant, load_plant
+from envs.split import split_train_validation
 from harness.record import record_diagnosis
 from harness.results import run_job, to_jsonable, write_json
 from identify.base import base_parameters

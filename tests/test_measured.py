@@ -12,8 +12,10 @@ from omegaconf import OmegaConf
 
 from envs.dataset import Dataset, write_csv
 from envs.errors import DataError
-from envs.measured import check_excitation, read_many, read_measured, split_train_validation
+from envs.excitation_check import check_excitation
+from envs.measured import read_many, read_measured
 from envs.plant import Plant, load_plant
+from envs.split import split_train_validation
 from identify.base import base_parameters
 from identify.model import ParameterModel
 

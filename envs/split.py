@@ -1,0 +1,96 @@
+"""Training and validation data that share no sample: held out by file, or by a contiguous block of time
+for a single record, never by random samples (neighbouring samples are strongly correlated)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from envs.dataset import Dataset
+from envs.errors import DataError
+
+__all__ = ["Split", "split_train_validation"]
+
+
+@dataclass(frozen=True)
+class Split:
+    """Training and validation data that share no sample.
+
+    Attributes:
+        train: datasets the fit may use.
+        validation: datasets it never sees.
+        by: `file` (whole files held out) or `time_block` (the last part of a single record held out).
+    """
+
+    train: tuple[Dataset, ...]
+    validation: tuple[Dataset, ...]
+    by: str
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready summary: `by`, and per part the source, first and last time [s] and sample count."""
+
+        def part(datasets: tuple[Dataset, ...]) -> list[dict[str, Any]]:
+            return [
+                {"source": d.source, "t_start": float(d.time[0]), "t_end": float(d.time[-1]), "n_samples": d.n_samples}
+                for d in datasets
+            ]
+
+        return {"by": self.by, "train": part(self.train), "validation": part(self.validation)}
+
+
+def split_train_validation(
+    datasets: Sequence[Dataset],
+    *,
+    validation_fraction: float = 0.3,
+    validation: Sequence[str] | None = None,
+    min_samples: int = 50,
+) -> Split:
+    """Hold data out for validation: whole files when there are two or more, else the end of the record.
+
+    Args:
+        datasets: one dataset per file, in order.
+        validation: files to hold out, by name, stem or path (two or more files only); None holds out the last
+            round(validation_fraction x files) of them, at least one, leaving at least one to train on.
+        validation_fraction: share held out when `validation` is None: of the files, or, for a single file,
+            of its samples, taken as one contiguous block at its end (the fit's samples all come before).
+        min_samples: fewest samples in each block of a single file.
+
+    Raises:
+        ValueError: a fraction outside (0, 1), no dataset, or `validation` naming a file not given.
+        DataError: a single record too short to split.
+    """
+    if not datasets:
+        raise ValueError("no dataset to split")
+    if not 0.0 < validation_fraction < 1.0:
+        raise ValueError(f"validation_fraction must lie in (0, 1), got {validation_fraction}")
+    if len(datasets) == 1:
+        if validation:
+            raise ValueError("with a single file the validation data are its last block: set validation_fraction")
+        data = datasets[0]
+        cut = int(round(data.n_samples * (1.0 - validation_fraction)))
+        short = min(cut, data.n_samples - cut)
+        if short < min_samples:
+            raise DataError(
+                f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
+                f"block of at least {min_samples} samples each"
+            )
+        return Split((data.slice(0, cut),), (data.slice(cut, data.n_samples),), "time_block")
+    if validation is None:
+        n_val = min(len(datasets) - 1, max(1, int(round(validation_fraction * len(datasets)))))
+        held = set(range(len(datasets) - n_val, len(datasets)))
+    else:
+        held = set()
+        for name in validation:
+            hits = [
+                i for i, d in enumerate(datasets) if str(name) in (d.source, Path(d.source).name, Path(d.source).stem)
+            ]
+            if not hits:
+                given = ", ".join(Path(d.source).name for d in datasets)
+                raise ValueError(f"validation file {name!r} is not among the files read: {given}")
+            held.update(hits)
+        if len(held) == len(datasets):
+            raise ValueError("every file is held out for validation: none is left to fit on")
+    train = tuple(d for i, d in enumerate(datasets) if i not in held)
+    return Split(train, tuple(d for i, d in enumerate(datasets) if i in held), "file")
