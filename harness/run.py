@@ -20,6 +20,7 @@ from envs.dataset import Dataset, write_csv
 from envs.plant import Plant, load_plant
 from envs.sensors import SensorModel
 from envs.simulate import inverse_dynamics, simulate_open_loop, simulate_tracking
+from excitation.criteria import conditioning
 from excitation.designs import grid
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits, limits_for
@@ -37,7 +38,6 @@ from identify.problem import Estimate, Problem, build_problem
 __all__ = [
     "CONF_DIR",
     "Experiment",
-    "conditioning",
     "design_from_config",
     "experiment_from_config",
     "main",
@@ -97,15 +97,6 @@ def simulate_design(
         rng=rng,
         bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
     )
-
-
-def conditioning(W: np.ndarray) -> tuple[float, float]:
-    """cond(X'X) of the stacked base regressor (raw) and cond(W) with unit-norm columns."""
-    A = W.reshape(-1, W.shape[-1])
-    s = np.linalg.svd(A, compute_uv=False)
-    norms = np.linalg.norm(A, axis=0)
-    sn = np.linalg.svd(A / np.where(norms > 0, norms, 1.0), compute_uv=False)
-    return float((s[0] / s[-1]) ** 2), float(sn[0] / sn[-1])
 
 
 def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Dataset, torque_driven: bool) -> dict:
