@@ -96,7 +96,7 @@ def _case(system: str) -> Case:
     quiet = SensorModel(sample_rate_hz=float(cfg.sensor.sample_rate_hz))
 
     def simulate(d: FourierDesign, periods: float) -> Dataset:
-        data = simulate_tracking(
+        return simulate_tracking(  # the dataset carries the held torque's instant (tau_lead_s)
             plant,
             d,
             duration_s=periods * d.period_s,
@@ -104,8 +104,6 @@ def _case(system: str) -> Case:
             rng=np.random.default_rng(0),
             bandwidth_hz=float(cfg.controller.bandwidth_hz),
         )
-        # the torque of row k is held over [t_k, t_k + dt); MuJoCo's positions trail by half a physics step
-        return dataclasses.replace(data, tau_lead_s=0.5 * (data.dt - plant.mj_model.opt.timestep))
 
     sigma_tau = np.broadcast_to(np.asarray(_plain(cfg.sensor.sigma_tau), float), (plant.nv,))
     _CASES[system] = Case(

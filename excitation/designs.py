@@ -12,7 +12,16 @@ from envs.simulate import inverse_dynamics
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 
-__all__ = ["default_design", "fit_to_limits", "grid", "random_design", "torque_rollout"]
+__all__ = [
+    "default_design",
+    "default_shape",
+    "fit_to_limits",
+    "grid",
+    "on_actuated",
+    "random_design",
+    "random_shape",
+    "torque_rollout",
+]
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
@@ -23,22 +32,31 @@ def grid(design: FourierDesign, points_per_period: int = 400) -> np.ndarray:
     return np.arange(n) * (design.period_s / n)
 
 
-def default_design(
-    plant: Plant, limits: Limits, *, harmonics: int, base_freq_hz: float, torque_driven: bool = False
-) -> FourierDesign:
-    """The fixed default shape, scaled to the limits.
-
-    Every joint gets every harmonic with amplitude 1/l and quasi-random phases (golden ratio and sqrt 2 in a
-    joint-harmonic product), so that no two joints move alike and every base parameter is excited.
-    """
-    n = plant.nv
-    j, h = np.arange(1, n + 1)[:, None], np.arange(1, harmonics + 1)[None, :]
+def default_shape(n_joints: int, harmonics: int, base_freq_hz: float, q0: np.ndarray) -> FourierDesign:
+    """The fixed default shape, unscaled: every joint gets every harmonic with amplitude 1/l and quasi-random
+    phases (golden ratio and sqrt 2 in a joint-harmonic product), so that no two joints move alike."""
+    j, h = np.arange(1, n_joints + 1)[:, None], np.arange(1, harmonics + 1)[None, :]
     # phases must not split into a joint term plus a harmonic term: then every joint's motion would be a mix
     # of the same two signals, and some parameter combinations would not be excited at all
     phase = 2 * np.pi * ((_GOLDEN * j * h**2 + np.sqrt(2.0) * j**2 * h) % 1.0)
+    return FourierDesign(base_freq_hz, np.cos(phase) / h, np.sin(phase) / h, q0)
+
+
+def random_shape(
+    n_joints: int, harmonics: int, base_freq_hz: float, q0: np.ndarray, rng: np.random.Generator
+) -> FourierDesign:
+    """A random shape, unscaled: Gaussian coefficients with amplitude falling as 1/l."""
     amp = 1.0 / np.arange(1, harmonics + 1)[None, :]
-    shape = FourierDesign(base_freq_hz, amp * np.cos(phase), amp * np.sin(phase), _centre(limits))
-    return _fit(plant, shape, limits, torque_driven)
+    a = rng.normal(size=(n_joints, harmonics)) * amp
+    b = rng.normal(size=(n_joints, harmonics)) * amp
+    return FourierDesign(base_freq_hz, a, b, q0)
+
+
+def default_design(
+    plant: Plant, limits: Limits, *, harmonics: int, base_freq_hz: float, torque_driven: bool = False
+) -> FourierDesign:
+    """The fixed default shape (`default_shape`), scaled to the limits; every base parameter is excited."""
+    return _fit(plant, default_shape(plant.nv, harmonics, base_freq_hz, _centre(limits)), limits, torque_driven)
 
 
 def random_design(
@@ -50,21 +68,20 @@ def random_design(
     rng: np.random.Generator,
     torque_driven: bool = False,
 ) -> FourierDesign:
-    """A random shape (Gaussian coefficients, amplitude falling as 1/l), scaled to the limits."""
-    n = plant.nv
-    amp = 1.0 / np.arange(1, harmonics + 1)[None, :]
-    shape = FourierDesign(
-        base_freq_hz, rng.normal(size=(n, harmonics)) * amp, rng.normal(size=(n, harmonics)) * amp, _centre(limits)
-    )
-    return _fit(plant, shape, limits, torque_driven)
+    """A random shape (`random_shape`), scaled to the limits."""
+    return _fit(plant, random_shape(plant.nv, harmonics, base_freq_hz, _centre(limits), rng), limits, torque_driven)
 
 
 def _fit(plant: Plant, shape: FourierDesign, limits: Limits, torque_driven: bool) -> FourierDesign:
     if torque_driven:
-        mask = plant.actuated[:, None]
-        shape = FourierDesign(shape.base_freq_hz, shape.a * mask, shape.b * mask, np.zeros(plant.nv))
-        return fit_torque_design(plant, shape, limits)
+        return fit_torque_design(plant, on_actuated(plant, shape), limits)
     return fit_to_limits(plant, shape, limits)
+
+
+def on_actuated(plant: Plant, shape: FourierDesign) -> FourierDesign:
+    """A shape read as a drive torque: the unactuated joints' rows zeroed, no offsets."""
+    mask = plant.actuated[:, None]
+    return FourierDesign(shape.base_freq_hz, shape.a * mask, shape.b * mask, np.zeros(plant.nv))
 
 
 def _centre(limits: Limits) -> np.ndarray:

@@ -17,7 +17,7 @@ from envs.errors import InfeasibleExcitationError, RankDeficientError
 from envs.plant import Plant
 from excitation.criteria import conditioning
 from excitation.criteria import criterion as evaluate_criterion
-from excitation.designs import grid
+from excitation.designs import default_shape, grid, on_actuated, random_shape
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 from identify.base import BaseParameters
@@ -46,15 +46,11 @@ def check_columns(A: np.ndarray, base: BaseParameters, plant: Plant) -> None:
 def raw_torque_shape(
     plant: Plant, harmonics: int, base_freq_hz: float, rng: np.random.Generator | None
 ) -> FourierDesign:
-    """A torque shape on the actuated joints: golden-ratio phases (rng None) or Gaussian, amplitude 1/l."""
-    n, H = plant.nv, harmonics
-    amp = 1.0 / np.arange(1, H + 1)[None, :] * plant.actuated[:, None]
+    """A torque shape on the actuated joints: the default shape (rng None) or a random one, unscaled."""
+    zero = np.zeros(plant.nv)
     if rng is None:
-        phase = 2 * np.pi * (np.sqrt(5.0) - 1.0) / 2.0 * (np.arange(n)[:, None] * H + np.arange(H)[None, :] + 1) * 3
-        a, b = amp * np.cos(phase), amp * np.sin(phase)
-    else:
-        a, b = amp * rng.normal(size=(n, H)), amp * rng.normal(size=(n, H))
-    return FourierDesign(base_freq_hz, a, b, np.zeros(n))
+        return on_actuated(plant, default_shape(plant.nv, harmonics, base_freq_hz, zero))
+    return on_actuated(plant, random_shape(plant.nv, harmonics, base_freq_hz, zero, rng))
 
 
 class TorqueSearch:

@@ -48,15 +48,6 @@ class Case(NamedTuple):
     tau_resolution: float
 
 
-def zoh_lead_s(plant: Plant, data: Dataset) -> float:
-    """Where the held torque of row k acts relative to time[k]: half a sample, less MuJoCo's half-step lag.
-
-    Semi-implicit Euler updates positions with the new velocity, so sampled positions trail the states the
-    torque acted on by half a physics step.
-    """
-    return 0.5 * (data.dt - plant.mj_model.opt.timestep)
-
-
 @functools.cache
 def case(system: str, periods: float | None = None, scale: float = 1.0, seconds: float | None = None) -> Case:
     """One noise-free simulation of the system's default design (optionally shrunk or shortened)."""
@@ -80,7 +71,6 @@ def case(system: str, periods: float | None = None, scale: float = 1.0, seconds:
     length = float(periods or cfg.system.periods) if seconds is None else seconds / design.period_s
     quiet = SensorModel(sample_rate_hz=float(cfg.system.sensor.sample_rate_hz))
     clean = simulate_design(plant, design, cfg, quiet, np.random.default_rng(0), length)
-    clean = dataclasses.replace(clean, tau_lead_s=zoh_lead_s(plant, clean))
     sigma_tau = np.broadcast_to(np.asarray(cfg.system.sensor.sigma_tau, float), (plant.nv,)).copy()
     return Case(plant, model, base, design, clean, sigma_tau, float(cfg.system.sensor.tau_resolution))
 

@@ -14,22 +14,16 @@ from tests.conftest import rrd_has_blueprint, rrd_rows
 REPO = Path(__file__).resolve().parents[1]
 
 
+def _sweep(sweep: Path, *overrides: str) -> None:
+    """`sysid-run -m` into `sweep` with the pendulum, no recordings, and these overrides."""
+    cmd = [sys.executable, "-m", "harness.run", "-m", f"hydra.sweep.dir={sweep}", "system=pendulum", "record=none"]
+    proc = subprocess.run([*cmd, *overrides], cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
 def test_two_job_sweep_and_its_report(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
-    cmd = [
-        sys.executable,
-        "-m",
-        "harness.run",
-        "-m",
-        "hydra/launcher=joblib",
-        "hydra.launcher.n_jobs=2",
-        f"hydra.sweep.dir={sweep}",
-        "system=pendulum",
-        "record=none",
-        "seed=0,1",
-    ]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    _sweep(sweep, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1")
     assert main([str(sweep)]) == 0
     with (sweep / "report.csv").open() as f:
         table = {row["job"]: row for row in csv.DictReader(f)}
@@ -47,18 +41,7 @@ def test_two_job_sweep_and_its_report(tmp_path: Path) -> None:
 
 def test_a_failed_job_is_reported_and_the_others_finish(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
-    cmd = [
-        sys.executable,
-        "-m",
-        "harness.run",
-        "-m",
-        f"hydra.sweep.dir={sweep}",
-        "system=pendulum",
-        "record=none",
-        "system.limits.acceleration=1e-6,60",
-    ]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    _sweep(sweep, "system.limits.acceleration=1e-6,60")
     rows = {float(r["overrides"].split("acceleration=")[1]): r for r in report_rows(collect(sweep))}
     assert rows[60.0]["status"] == "ok"
     assert rows[1e-6]["status"] == "failed"
