@@ -25,7 +25,7 @@ run: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy envs excitation identify harness
+	$(BIN)/mypy dynamics envs excitation identify harness
 
 test: lint
 	$(BIN)/python -m pytest -n 2 -q

@@ -27,8 +27,10 @@ from typing import Any, NamedTuple
 import numpy as np
 from omegaconf import OmegaConf
 
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
-from envs.plant import Plant, load_plant
 from envs.sensors import SensorModel
 from envs.simulate import simulate_tracking
 from excitation.fourier import FourierDesign
@@ -36,10 +38,8 @@ from excitation.limits import limits_for
 from excitation.registry import design_excitation
 from harness.progress import printer
 from harness.run import CONF_DIR
-from identify.base import BaseParameters, base_parameters
 from identify.derivatives import derive_states
 from identify.estimators import estimate
-from identify.model import ParameterModel
 from identify.problem import build_problem
 
 HERE = Path(__file__).resolve().parent

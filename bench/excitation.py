@@ -18,15 +18,15 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from envs.errors import SysIdError
-from envs.plant import MJCF_DIR, load_plant
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.errors import SysIdError
+from dynamics.plant import MJCF_DIR, load_plant
+from dynamics.regressor import ParameterModel
 from excitation.designs import grid, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits, limits_for
 from excitation.optimise import assess_design, optimise_excitation
 from harness.run import CONF_DIR
-from identify.base import BaseParameters, base_parameters
-from identify.model import ParameterModel
 
 HERE = Path(__file__).resolve().parent
 SYSTEMS = ("pendulum", "two_link", "wheel_pendulum", "arm3")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from hydra import compose, initialize_config_dir
 
-from envs.plant import MJCF_DIR
+from dynamics.plant import MJCF_DIR
 from harness.run import CONF_DIR, run
 
 HERE = Path(__file__).resolve().parent

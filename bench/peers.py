@@ -40,16 +40,16 @@ import numpy as np
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
+from dynamics.base import BaseParameters
+from dynamics.plant import Plant
+from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
-from envs.plant import Plant
 from excitation.registry import EXCITATIONS
 from harness.run import CONF_DIR, design_from_config, experiment_from_config, simulate_design
-from identify.base import BaseParameters
 from identify.compare import predict_torque, torque_rms
 from identify.derivatives import States, derive_states
 from identify.diagnose.simulation_error import ode_stepper, simulation_error
 from identify.estimators import estimate
-from identify.model import ParameterModel
 from identify.problem import build_problem
 
 HERE = Path(__file__).resolve().parent

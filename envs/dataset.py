@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.errors import DataError
+from dynamics.errors import DataError
 
 __all__ = ["Dataset", "atomic_write", "write_csv"]
 

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from envs.plant import Plant, plant_from_xml
+from dynamics.plant import Plant, plant_from_xml
 from envs.sensors import SensorModel
 
 __all__ = ["HIDDEN_EFFECTS", "MJCF_EFFECTS", "SENSOR_EFFECTS", "HiddenEffect", "apply_effects"]

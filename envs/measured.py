@@ -15,7 +15,7 @@ header is line 1). Nothing questionable reaches a fit silently:
   uniform grid at the median step, which the derivative filters need). `repair=False` and `resample=False`
   turn the last three into refusals.
 
-`envs.excitation_check.check_excitation` tells whether a regressor built from the data excites every
+`identify.excitation_check.check_excitation` tells whether a regressor built from the data excites every
 parameter asked for; `envs.split.split_train_validation` holds data out by file or by a block of time.
 """
 
@@ -32,9 +32,9 @@ import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from dynamics.errors import DataError
+from dynamics.plant import Plant
 from envs.dataset import Dataset
-from envs.errors import DataError
-from envs.plant import Plant
 
 __all__ = ["Repair", "read_many", "read_measured"]
 

@@ -14,38 +14,19 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
+from dynamics.errors import ModelError
+from dynamics.plant import Plant
+from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
-from envs.errors import ModelError
-from envs.plant import Plant
 from envs.sensors import SensorModel
 
-__all__ = ["Reference", "inverse_dynamics", "simulate_open_loop", "simulate_tracking"]
+__all__ = ["Reference", "simulate_open_loop", "simulate_tracking"]
 
 
 class Reference(Protocol):
     """Anything that gives joint positions, velocities and accelerations at given times."""
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
-
-
-def inverse_dynamics(plant: Plant | mujoco.MjModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-    """MuJoCo's inverse dynamics (rigid body, armature, passive and active constraint forces).
-
-    Args:
-        plant: the plant, or a MuJoCo model (a variant being evaluated).
-        q, dq, ddq: (N, nv) joint positions [rad], velocities [rad/s], accelerations [rad/s^2].
-
-    Returns:
-        (N, nv) joint torques [N m].
-    """
-    m = plant.mj_model if isinstance(plant, Plant) else plant
-    d = mujoco.MjData(m)
-    out = np.empty_like(q)
-    for k in range(len(q)):
-        d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
-        mujoco.mj_inverse(m, d)
-        out[k] = d.qfrc_inverse
-    return out
 
 
 def simulate_tracking(

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dynamics.errors import DataError
 from envs.dataset import Dataset
-from envs.errors import DataError
 
 __all__ = ["Split", "split_train_validation"]
 

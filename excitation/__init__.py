@@ -10,7 +10,6 @@ from excitation.optimise import (
     GRADIENTS,
     OptimisedExcitation,
     assess_design,
-    nominal_torque,
     optimise_excitation,
     position_limit_ratios,
 )
@@ -32,7 +31,6 @@ __all__ = [
     "fit_to_limits",
     "grid",
     "limits_for",
-    "nominal_torque",
     "optimise_excitation",
     "position_limit_ratios",
     "random_design",

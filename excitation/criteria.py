@@ -22,9 +22,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from dynamics.base import BaseParameters
+from dynamics.regressor import ParameterModel
 from excitation.fourier import FourierDesign
-from identify.base import BaseParameters
-from identify.model import ParameterModel
 
 __all__ = ["CRITERIA", "conditioning", "criterion", "design_criterion", "regressor_derivatives"]
 

@@ -6,9 +6,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from envs.errors import InfeasibleExcitationError
-from envs.plant import Plant
-from envs.simulate import inverse_dynamics
+from dynamics.errors import InfeasibleExcitationError
+from dynamics.plant import Plant
+from dynamics.torque import joint_torque
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 
@@ -118,7 +118,7 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
 
     def torque_ratio(s: float) -> float:
         q, dq, ddq = shape.scaled(s).evaluate(t_tau)
-        return float(np.max(np.abs(inverse_dynamics(plant, q, dq, ddq)) / limits.tau_max))
+        return float(np.max(np.abs(joint_torque(plant, q, dq, ddq)[0]) / limits.tau_max))
 
     if torque_ratio(0.0) > 1.0:
         raise InfeasibleExcitationError(

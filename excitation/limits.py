@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.plant import Plant
+from dynamics.plant import Plant
 
 __all__ = ["Limits", "limits_for"]
 

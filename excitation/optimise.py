@@ -21,25 +21,24 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
 from scipy.optimize import minimize
 
-from envs.errors import InfeasibleExcitationError
-from envs.plant import Plant
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.errors import InfeasibleExcitationError
+from dynamics.plant import Plant
+from dynamics.regressor import ParameterModel
+from dynamics.torque import joint_torque
 from excitation.criteria import CRITERIA, conditioning, design_criterion
 from excitation.criteria import criterion as evaluate_criterion
 from excitation.designs import default_design, fit_to_limits, grid, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 from excitation.torque_search import CHECK_DENSITY, TorqueSearch, check_columns, cond_xtx, raw_torque_shape
-from identify.base import BaseParameters, base_parameters
-from identify.model import ParameterModel
 
 __all__ = [
     "GRADIENTS",
     "OptimisedExcitation",
     "assess_design",
-    "nominal_torque",
     "optimise_excitation",
     "position_limit_ratios",
 ]
@@ -79,41 +78,10 @@ class OptimisedExcitation:
         return max(self.ratios.values()) <= 1.0
 
 
-def nominal_torque(
-    plant: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, *, derivatives: bool = False
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Joint torque of the nominal model (RNEA with armature, plus damping and stiffness) at each sample.
-
-    Args:
-        q, dq, ddq: (N, nv) joint positions [rad], velocities [rad/s], accelerations [rad/s^2].
-        derivatives: also return the torque's derivatives.
-
-    Returns:
-        tau: (N, nv) [N m].
-        D: (3, N, nv, nv) dtau/dq, dtau/ddq, dtau/dddq per sample, or None.
-    """
-    pm = plant.pin_model
-    data = pm.createData()
-    tau = np.empty_like(q)
-    D = np.empty((3, *q.shape, q.shape[1])) if derivatives else None
-    for k in range(len(q)):
-        if D is None:
-            tau[k] = pin.rnea(pm, data, q[k], dq[k], ddq[k])
-            continue
-        d_q, d_v, d_a = pin.computeRNEADerivatives(pm, data, q[k], dq[k], ddq[k])
-        tau[k] = data.tau
-        D[0, k], D[1, k], D[2, k] = d_q, d_v, d_a  # copies: Pinocchio hands back views of `data`
-    tau += plant.damping * dq + plant.stiffness * (q - plant.springref)
-    if D is not None:
-        D[0] += np.diag(plant.stiffness)
-        D[1] += np.diag(plant.damping)
-    return tau, D
-
-
 def position_limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, t: np.ndarray) -> dict[str, float]:
     """Worst use of each bound by a position design on the times `t` [s] (torque of the nominal model)."""
     q, dq, ddq = design.evaluate(t)
-    return limits.ratios(q, dq, ddq, nominal_torque(plant, q, dq, ddq)[0])
+    return limits.ratios(q, dq, ddq, joint_torque(plant, q, dq, ddq)[0])
 
 
 def assess_design(
@@ -337,7 +305,7 @@ class _PositionProblem:
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1], self._cache[2]
         q, dq, ddq = self.design(x).evaluate(self.t_lim)
-        tau, D = nominal_torque(self.plant, q, dq, ddq, derivatives=True)
+        tau, D = joint_torque(self.plant, q, dq, ddq, derivatives=True)
         assert D is not None
         J_ab = np.einsum("dkji,dkh->kjih", D, self.B)  # (N, nv, nv, 2H)
         N = len(self.t_lim)

@@ -7,12 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from envs.plant import Plant
+from dynamics.plant import Plant
+from dynamics.regressor import ParameterModel
 from excitation.designs import default_design, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 from excitation.optimise import optimise_excitation
-from identify.model import ParameterModel
 
 __all__ = ["EXCITATIONS", "design_excitation"]
 

@@ -13,15 +13,15 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from envs.errors import InfeasibleExcitationError, RankDeficientError
-from envs.plant import Plant
+from dynamics.base import BaseParameters
+from dynamics.errors import InfeasibleExcitationError, RankDeficientError
+from dynamics.plant import Plant
+from dynamics.regressor import ParameterModel
 from excitation.criteria import conditioning
 from excitation.criteria import criterion as evaluate_criterion
 from excitation.designs import default_shape, grid, on_actuated, random_shape
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
-from identify.base import BaseParameters
-from identify.model import ParameterModel
 
 __all__ = ["CHECK_DENSITY", "TorqueSearch", "check_columns", "cond_xtx", "raw_torque_shape"]
 

@@ -17,14 +17,14 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from dynamics.base import base_parameters
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, atomic_write
-from envs.excitation_check import check_excitation
 from envs.measured import read_many
-from envs.plant import Plant, load_plant
 from envs.split import split_train_validation
 from harness.record import record_diagnosis
 from harness.results import run_job, to_jsonable, write_json
-from identify.base import base_parameters
 from identify.derivatives import derive_states
 from identify.diagnose import (
     CANDIDATE_EFFECTS,
@@ -36,7 +36,7 @@ from identify.diagnose import (
     diagnose,
     load_author_model,
 )
-from identify.model import ParameterModel
+from identify.excitation_check import check_excitation
 
 __all__ = ["CONF_DIR", "main", "reference_models", "run"]
 

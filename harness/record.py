@@ -14,7 +14,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from envs.plant import Plant
+from dynamics.plant import Plant
 from harness.robot3d import log_robot
 
 __all__ = ["log_joint_series", "run_blueprint", "save_recording"]

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import rerun as rr
 
-from envs.plant import Plant
+from dynamics.plant import Plant
 
 __all__ = ["body_poses", "log_robot"]
 

@@ -16,10 +16,13 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
+from dynamics.torque import joint_torque
 from envs.dataset import Dataset, write_csv
-from envs.plant import Plant, load_plant
 from envs.sensors import SensorModel
-from envs.simulate import inverse_dynamics, simulate_open_loop, simulate_tracking
+from envs.simulate import simulate_open_loop, simulate_tracking
 from excitation.criteria import conditioning
 from excitation.designs import grid
 from excitation.fourier import FourierDesign
@@ -27,12 +30,10 @@ from excitation.limits import Limits, limits_for
 from excitation.registry import EXCITATIONS, design_excitation
 from harness.progress import Progress, printer
 from harness.results import run_job, summary_table, write_json
-from identify.base import BaseParameters, base_parameters
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
 from identify.derivatives import DERIVATIVES, derive_states
 from identify.derived import DERIVED
 from identify.estimators import ESTIMATORS, estimate
-from identify.model import ParameterModel
 from identify.problem import Estimate, Problem, build_problem
 
 __all__ = [
@@ -105,7 +106,7 @@ def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Data
         return limits.ratios(data.meta["q_true"], data.meta["dq_true"], data.ddq, data.meta["tau_applied"])
     t = grid(design, 4000)
     q, dq, ddq = design.evaluate(t)
-    return limits.ratios(q, dq, ddq, inverse_dynamics(plant, q, dq, ddq))
+    return limits.ratios(q, dq, ddq, joint_torque(plant, q, dq, ddq)[0])
 
 
 def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any]:

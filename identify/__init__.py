@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from identify.base import BaseParameters, base_parameters
 from identify.compare import (
     ParameterComparison,
     compare_with_truth,
@@ -13,22 +12,20 @@ from identify.compare import (
 from identify.derivatives import DERIVATIVES, States, derive_states, excitation_bandwidth_hz
 from identify.derived import DERIVED, first_moment_along, inertia_about_joint_axis
 from identify.estimators import ESTIMATORS, estimate
-from identify.model import EFFECT_COLUMNS, ParameterModel, rigid_body_regressor
+from identify.excitation_check import ExcitationCheck, check_excitation
 from identify.problem import Estimate, Problem, build_problem
 
 __all__ = [
     "DERIVATIVES",
     "DERIVED",
-    "EFFECT_COLUMNS",
     "ESTIMATORS",
-    "BaseParameters",
     "Estimate",
+    "ExcitationCheck",
     "ParameterComparison",
-    "ParameterModel",
     "Problem",
     "States",
-    "base_parameters",
     "build_problem",
+    "check_excitation",
     "compare_with_truth",
     "derive_states",
     "estimate",
@@ -37,6 +34,5 @@ __all__ = [
     "inertia_about_joint_axis",
     "linear_combination",
     "predict_torque",
-    "rigid_body_regressor",
     "torque_rms",
 ]

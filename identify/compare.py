@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from identify.base import BaseParameters
-from identify.model import ParameterModel
+from dynamics.base import BaseParameters
+from dynamics.regressor import ParameterModel
 from identify.problem import Estimate
 
 __all__ = ["ParameterComparison", "compare_with_truth", "linear_combination", "predict_torque", "torque_rms"]

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 from scipy import linalg, signal
 
+from dynamics.errors import DataError
 from envs.dataset import Dataset
-from envs.errors import DataError
 
 __all__ = ["DERIVATIVES", "States", "derive_states", "excitation_bandwidth_hz"]
 

@@ -11,7 +11,8 @@ from collections.abc import Callable
 import numpy as np
 import pinocchio as pin
 
-from envs.plant import Plant
+from dynamics.inertia import transform_parameters
+from dynamics.plant import Plant
 
 __all__ = ["DERIVED", "first_moment_along", "inertia_about_joint_axis"]
 
@@ -25,22 +26,11 @@ def _placements(plant: Plant) -> list[pin.SE3]:
     return [root.actInv(data.oMi[i]) for i in range(1, pm.njoints)]
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _moved(params: np.ndarray, placement: pin.SE3) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, first moment (3,) and inertia (3, 3) at the first joint's origin, from one body's 10 parameters.
-
-    Linear in `params` (unlike pin.Inertia, which divides by the mass to find the centre).
-    """
-    m, h = params[0], params[1:4]
-    ixx, ixy, iyy, ixz, iyz, izz = params[4:]
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    R, p = placement.rotation, placement.translation
-    rh = R @ h
-    shifted = R @ inertia @ R.T - (_skew(p) @ _skew(rh) + _skew(rh) @ _skew(p)) - m * _skew(p) @ _skew(p)
-    return m, rh + m * p, shifted
+    """Mass, first moment (3,) and inertia (3, 3) at the first joint's origin, from one body's 10 parameters."""
+    moved = transform_parameters(params, placement.homogeneous)
+    xx, xy, yy, xz, yz, zz = moved[4:]
+    return float(moved[0]), moved[1:4], np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
 
 
 def _linear_in_params(plant: Plant, fn: Callable[[float, np.ndarray, np.ndarray, int], float]) -> np.ndarray:

@@ -6,10 +6,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dynamics.base import BaseParameters
+from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
-from identify.base import BaseParameters
 from identify.derivatives import States
-from identify.model import ParameterModel
 
 __all__ = ["Estimate", "Problem", "build_problem"]
 

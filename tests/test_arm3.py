@@ -6,12 +6,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from envs.plant import load_plant
-from envs.simulate import inverse_dynamics
+from dynamics.plant import load_plant
+from dynamics.regressor import ParameterModel
+from dynamics.torque import inverse_dynamics
 from identify.compare import compare_with_truth
 from identify.derivatives import derive_states
 from identify.estimators import estimate
-from identify.model import ParameterModel
 from identify.problem import build_problem
 from tests.conftest import compose_config
 from tests.test_estimators import case, measure

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.errors import RankDeficientError
-from envs.plant import load_plant
-from identify.base import base_parameters
-from identify.model import ParameterModel
+from dynamics.base import base_parameters
+from dynamics.errors import RankDeficientError
+from dynamics.plant import load_plant
+from dynamics.regressor import ParameterModel
 
 
 @pytest.mark.parametrize(

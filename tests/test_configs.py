@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from envs.plant import load_plant
+from dynamics.plant import load_plant
 from excitation.registry import EXCITATIONS
 from harness.run import CONF_DIR
 from identify.estimators import ESTIMATORS

@@ -15,9 +15,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from dynamics.plant import Plant, load_plant, plant_from_xml
 from envs.dataset import Dataset
 from envs.effects import HiddenEffect, apply_effects
-from envs.plant import Plant, load_plant, plant_from_xml
 from envs.sensors import SensorModel
 from envs.simulate import simulate_open_loop, simulate_tracking
 from excitation.designs import default_design, random_design
@@ -238,12 +238,12 @@ def test_record_offsets_absorb_offsets_that_change_between_recordings(tmp_path: 
 
 def _mass_matrix(plant: Plant, q: np.ndarray) -> np.ndarray:
     """M(q) from inverse dynamics at rest: tau(q, 0, e_k) - tau(q, 0, 0) is column k."""
-    from identify.diagnose.torque import model_torque
+    from dynamics.torque import joint_torque
 
     nv = plant.nv
     qs, zeros = np.repeat(q[None], nv + 1, axis=0), np.zeros((nv + 1, nv))
     ddq = np.vstack([np.eye(nv), np.zeros((1, nv))])
-    tau = model_torque(plant, qs, zeros, ddq)
+    tau = joint_torque(plant, qs, zeros, ddq)[0]
     return (tau[:nv] - tau[nv]).T
 
 

@@ -11,10 +11,10 @@ import pytest
 from test_diagnose import simulate
 
 import harness.diagnose as cli
+from dynamics.errors import DataError
+from dynamics.plant import load_plant
 from envs.dataset import Dataset, write_csv
 from envs.effects import HiddenEffect
-from envs.errors import DataError
-from envs.plant import load_plant
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
 OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml")

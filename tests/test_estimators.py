@@ -15,25 +15,20 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.inertia import body_and_jacobian, body_from_log_cholesky, log_cholesky_from_body, pseudo_inertia
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
-from envs.plant import Plant, load_plant
 from envs.sensors import SensorModel
 from excitation.fourier import FourierDesign
 from excitation.limits import limits_for
 from excitation.registry import design_excitation
 from harness.run import CONF_DIR, simulate_design
-from identify.base import BaseParameters, base_parameters
 from identify.compare import predict_torque
 from identify.derivatives import States, derive_states
 from identify.estimators import ESTIMATORS, estimate
-from identify.estimators.physical import (
-    _body_and_jacobian,
-    body_from_log_cholesky,
-    log_cholesky_from_body,
-    pseudo_inertia,
-)
 from identify.estimators.signals import filtered_model
-from identify.model import ParameterModel
 from identify.problem import Problem, build_problem
 from tests.conftest import compose_config
 
@@ -132,7 +127,7 @@ def test_log_cholesky_covers_consistent_bodies_and_its_jacobian_is_exact() -> No
     for _ in range(20):
         x = rng.normal(size=10)
         assert np.linalg.eigvalsh(pseudo_inertia(body_from_log_cholesky(x)))[0] > 0
-        _, jac = _body_and_jacobian(x)
+        _, jac = body_and_jacobian(x)
         numeric = np.column_stack(
             [(body_from_log_cholesky(x + 1e-6 * e) - body_from_log_cholesky(x - 1e-6 * e)) / 2e-6 for e in np.eye(10)]
         )

@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from envs.errors import InfeasibleExcitationError
-from envs.plant import Plant, load_plant
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.errors import InfeasibleExcitationError
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
+from dynamics.torque import inverse_dynamics, joint_torque
 from envs.sensors import SensorModel
-from envs.simulate import inverse_dynamics, simulate_tracking
+from envs.simulate import simulate_tracking
 from excitation.criteria import CRITERIA, conditioning, criterion, design_criterion
 from excitation.designs import default_design, grid, random_design
 from excitation.fourier import FourierDesign
@@ -20,15 +23,12 @@ from excitation.optimise import (
     OptimisedExcitation,
     _PositionProblem,
     assess_design,
-    nominal_torque,
     optimise_excitation,
 )
 from excitation.registry import EXCITATIONS, design_excitation
 from harness.run import CONF_DIR
-from identify.base import BaseParameters, base_parameters
 from identify.derivatives import derive_states
 from identify.estimators import estimate
-from identify.model import ParameterModel
 from identify.problem import build_problem
 
 POSITION_SYSTEMS = [
@@ -128,7 +128,7 @@ def test_nominal_torque_matches_mujoco_and_its_derivatives() -> None:
     plant = _setup("two_link")[0]
     rng = np.random.default_rng(2)
     q, dq, ddq = (rng.normal(size=(5, 2)) for _ in range(3))
-    tau, D = nominal_torque(plant, q, dq, ddq, derivatives=True)
+    tau, D = joint_torque(plant, q, dq, ddq, derivatives=True)
     assert D is not None
     np.testing.assert_allclose(tau, inverse_dynamics(plant, q, dq, ddq), atol=1e-10)
     for k in range(5):
@@ -138,7 +138,7 @@ def test_nominal_torque_matches_mujoco_and_its_derivatives() -> None:
             def torque(x: np.ndarray, d: int = d, state: list = state) -> np.ndarray:
                 args = [s[None] for s in state]
                 args[d] = x[None]
-                return nominal_torque(plant, *args)[0][0]
+                return joint_torque(plant, *args)[0][0]
 
             np.testing.assert_allclose(D[d, k], _fd(torque, state[d], 1e-6), atol=1e-7)
 

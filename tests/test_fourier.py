@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.errors import InfeasibleExcitationError
-from envs.plant import load_plant
-from envs.simulate import inverse_dynamics
+from dynamics.errors import InfeasibleExcitationError
+from dynamics.plant import load_plant
+from dynamics.torque import inverse_dynamics
 from excitation.designs import default_design, grid, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import limits_for

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from dynamics.base import base_parameters
+from dynamics.errors import DataError
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, write_csv
-from envs.errors import DataError
-from envs.excitation_check import check_excitation
 from envs.measured import read_many, read_measured
-from envs.plant import Plant, load_plant
 from envs.split import split_train_validation
-from identify.base import base_parameters
-from identify.model import ParameterModel
+from identify.excitation_check import check_excitation
 
 CONF_DATA = Path(__file__).resolve().parents[1] / "conf" / "data"
 FS = 500.0

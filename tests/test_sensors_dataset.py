@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dynamics.errors import DataError
+from dynamics.plant import load_plant
 from envs.dataset import Dataset, write_csv
-from envs.errors import DataError
-from envs.plant import load_plant
 from envs.sensors import SensorModel, quantise
 from envs.simulate import simulate_open_loop
 

@@ -3,6 +3,7 @@ model and the gain on held-out data (DESIGN.md question 4)."""
 
 from __future__ import annotations
 
+from dynamics.torque import joint_torque
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
 from identify.diagnose.calibrate import Extension, calibrated_xml, frictionloss_mapping, predict_measured_torque
 from identify.diagnose.candidates import CANDIDATE_EFFECTS, Candidate, Signals, candidates
@@ -10,7 +11,6 @@ from identify.diagnose.diagnosis import DEFAULT_EFFECTS, Diagnosis, Finding, Ref
 from identify.diagnose.residuals import analyse_residual, noise_floor, whiteness
 from identify.diagnose.select import SelectionOptions, select_effects
 from identify.diagnose.simulation_error import SimulationError, simulation_error
-from identify.diagnose.torque import model_torque
 
 __all__ = [
     "CANDIDATE_EFFECTS",
@@ -30,8 +30,8 @@ __all__ = [
     "candidates",
     "diagnose",
     "frictionloss_mapping",
+    "joint_torque",
     "load_author_model",
-    "model_torque",
     "noise_floor",
     "predict_measured_torque",
     "select_effects",

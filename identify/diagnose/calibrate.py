@@ -30,13 +30,20 @@ import mujoco
 import numpy as np
 from scipy import optimize
 
-from envs.plant import Plant
-from envs.simulate import inverse_dynamics
+from dynamics.inertia import (
+    body_from_log_cholesky,
+    is_consistent,
+    log_cholesky_from_body,
+    mass_com_inertia,
+    repair_body,
+    transform_parameters,
+)
+from dynamics.plant import Plant, own_body_parameters
+from dynamics.regressor import rigid_body_regressor
+from dynamics.sampling import random_states
+from dynamics.torque import inverse_dynamics, joint_torque
 from identify.diagnose.candidates import rotor_chain
 from identify.diagnose.select import LinearFit, Step
-from identify.diagnose.torque import model_torque
-from identify.estimators.physical import body_from_log_cholesky, log_cholesky_from_body
-from identify.model import rigid_body_regressor
 
 __all__ = [
     "Extension",
@@ -182,66 +189,9 @@ def _add_rotor_coupling(plant: Plant, ext: Extension, j: int, rho: float) -> Non
     ext.rotor_coupling[j] += rho
 
 
-def _inertial(theta: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, centre of mass (3,) and inertia about it (3, 3) from 10 standard parameters at the body origin."""
-    m = float(theta[0])
-    c = theta[1:4] / m
-    xx, xy, yy, xz, yz, zz = theta[4:]
-    origin = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-    return m, c, origin - m * (np.dot(c, c) * np.eye(3) - np.outer(c, c))
-
-
-_MARGIN = 1e-7
-
-
-def _consistent(theta: np.ndarray) -> bool:
-    if theta[0] <= 0:
-        return False
-    w = np.sort(np.linalg.eigvalsh(_inertial(theta)[2]))
-    # an absolute margin [kg m^2]: the MJCF text keeps about six digits, and MuJoCo checks A + B >= C on them
-    return bool(w[0] > _MARGIN and w[0] + w[1] - w[2] > _MARGIN)
-
-
-def _physical(theta: np.ndarray, nominal: np.ndarray, free: np.ndarray, notes: list[str], body: str) -> np.ndarray:
-    """The corrected parameters if they are physically consistent; otherwise repaired where the data is blind.
-
-    Directions the data does not see (for a planar arm: the inertia about in-plane axes) may leave a body
-    with an inertia that is not positive definite; those entries (`free`, (10,) bool) are raised until
-    it is, which changes no predicted torque. Only if no such entry exists is the inertia about the centre
-    of mass itself repaired (a note says so).
-    """
-    if _consistent(theta):
-        return theta
-    fixed = theta.copy()
-    if fixed[0] <= 0:
-        fixed[0] = nominal[0]
-        notes.append(f"{body}: the fitted mass was not positive; nominal mass kept")
-    diagonal = [i for i in (4, 6, 9) if free[i]]
-    if diagonal:
-        raised, step = fixed.copy(), 1e-7
-        while not _consistent(raised) and step < 1.0:
-            raised[diagonal] = fixed[diagonal] + step
-            step *= 1.5
-        if _consistent(raised):
-            notes.append(
-                f"{body}: unobservable inertia entries raised by {step / 1.5:.3g} kg m^2 (physical consistency)"
-            )
-            return raised
-    m, c, inertia = _inertial(fixed)
-    w, v = np.linalg.eigh(inertia)
-    w = np.maximum(w, 2 * _MARGIN)
-    for _ in range(100):  # triangle inequality of principal moments
-        gap = 2 * _MARGIN + w.max() - (w.sum() - w.max())
-        if gap <= 0:
-            break
-        w = w + gap
-    inertia = v @ np.diag(w) @ v.T
-    notes.append(f"{body}: inertia about the centre of mass raised to be physically consistent (changes predictions)")
-    origin = inertia + m * (np.dot(c, c) * np.eye(3) - np.outer(c, c))
-    return np.array([m, *(m * c), origin[0, 0], origin[0, 1], origin[1, 1], origin[0, 2], origin[1, 2], origin[2, 2]])
-
-
-def consistent_parameters(plant: Plant, theta: np.ndarray, metric: np.ndarray, notes: list[str]) -> np.ndarray:
+def consistent_parameters(
+    plant: Plant, theta: np.ndarray, metric: np.ndarray, notes: list[str], *, nominal: np.ndarray | None = None
+) -> np.ndarray:
     """Physically consistent standard parameters that predict the training torques like `theta` does.
 
     A fit of base parameters can leave a body with no physical realisation (negative mass, an inertia
@@ -252,21 +202,21 @@ def consistent_parameters(plant: Plant, theta: np.ndarray, metric: np.ndarray, n
     `theta` is returned unchanged.
 
     Args:
-        plant: the nominal model (the anchor of the weak pull).
+        plant: the nominal model.
         theta: (10 nv,) corrected standard parameters.
+        nominal: (10 nv,) the anchor of the weak pull (default: `plant.theta`).
         metric: (k, 10 nv) with ||metric d|| the (weighted) training torque change of a parameter change d
             (the R factor of the stacked rigid-body regressor).
         notes: receives what was changed.
     """
-    if all(_consistent(theta[10 * b : 10 * b + 10]) for b in range(plant.nv)):
+    if all(is_consistent(theta[10 * b : 10 * b + 10]) for b in range(plant.nv) if plant.carries_body[b]):
         return theta
     nv = plant.nv
+    anchor = plant.theta if nominal is None else nominal
     mu = 1e-4 * float(np.linalg.norm(metric, 2))
     x0 = np.concatenate(
         [
-            log_cholesky_from_body(
-                theta[10 * b : 10 * b + 10] if theta[10 * b] > 0 else plant.theta[10 * b : 10 * b + 10]
-            )
+            log_cholesky_from_body(theta[10 * b : 10 * b + 10] if theta[10 * b] > 0 else anchor[10 * b : 10 * b + 10])
             for b in range(nv)
         ]
     )
@@ -276,7 +226,7 @@ def consistent_parameters(plant: Plant, theta: np.ndarray, metric: np.ndarray, n
 
     def residual(x: np.ndarray) -> np.ndarray:
         th = params(x)
-        return np.concatenate([metric @ (th - theta), mu * (th - plant.theta)])
+        return np.concatenate([metric @ (th - theta), mu * (th - anchor)])
 
     fixed = params(optimize.least_squares(residual, x0, method="trf", max_nfev=2000).x)
     change = float(np.linalg.norm(metric @ (fixed - theta)) / max(float(np.linalg.norm(metric @ theta)), 1e-300))
@@ -289,12 +239,32 @@ def consistent_parameters(plant: Plant, theta: np.ndarray, metric: np.ndarray, n
 
 def _unobservable(plant: Plant) -> np.ndarray:
     """(10 nv,) True for standard parameters that never change a joint torque (zero regressor column)."""
-    rng = np.random.default_rng(0)
     n = 200
-    q = rng.uniform(-np.pi, np.pi, (n, plant.nv))
-    W = rigid_body_regressor(plant, q, rng.normal(0, 3, (n, plant.nv)), rng.normal(0, 10, (n, plant.nv)))
-    norms = np.linalg.norm(W.reshape(n * plant.nv, -1), axis=0)
+    W = rigid_body_regressor(plant, *random_states(plant, np.random.default_rng(0), n)).reshape(n * plant.nv, -1)
+    norms = np.linalg.norm(W, axis=0)
     return norms <= 1e-9 * max(float(norms.max()), 1e-300)
+
+
+def _write_inertial(spec: mujoco.MjSpec, plant: Plant, j: int, params: np.ndarray) -> None:
+    """Set joint j's body inertial to `params` (10,) given in the joint's frame, as mass, centre, principal
+    moments and axes (MuJoCo's own form), replacing whichever form the file used."""
+    m, c, inertia = mass_com_inertia(transform_parameters(params, np.linalg.inv(plant.joint_from_body[j])))
+    moments, axes = np.linalg.eigh(inertia)
+    if np.linalg.det(axes) < 0:
+        axes[:, 0] = -axes[:, 0]
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, axes.reshape(-1))
+    body = spec.body(plant.body_names[j])
+    body.mass, body.ipos, body.iquat, body.inertia = m, c, quat, moments
+    body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])  # MjSpec's "not given"
+    body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    body.explicitinertial = True
+
+
+def _angle_unit(spec: mujoco.MjSpec, plant: Plant, j: int) -> float:
+    """Radians per unit of joint j's angles in the MJCF text (degrees where the compiler says so)."""
+    hinge = plant.mj_model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+    return float(np.pi / 180.0) if hinge and spec.compiler.degree else 1.0
 
 
 def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = None, comment: str = "") -> str:
@@ -326,36 +296,36 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         stiffness = np.array(joint.stiffness, dtype=float)
         stiffness[0] = plant.stiffness[j] + ext.stiffness[j]
         joint.stiffness = stiffness
-        joint.springref = float(ext.springref[j])
-        joint.ref = float(joint.ref + ext.joint_offset[j])
-    corrected = plant.theta + ext.theta_delta
+        unit = _angle_unit(spec, plant, j)
+        joint.springref = float(ext.springref[j]) / unit
+        joint.ref = float(joint.ref + ext.joint_offset[j] / unit)
+    own = own_body_parameters(plant)
+    corrected = own + ext.theta_delta
     if np.any(ext.theta_delta):
         if metric is not None:
-            corrected = consistent_parameters(plant, corrected, metric, ext.notes)
+            corrected = consistent_parameters(plant, corrected, metric, ext.notes, nominal=own)
         free = _unobservable(plant)
         corrected = np.concatenate(
             [
-                _physical(
-                    corrected[10 * b : 10 * b + 10],
-                    plant.theta[10 * b : 10 * b + 10],
-                    free[10 * b : 10 * b + 10],
-                    ext.notes,
-                    n,
+                repair_body(
+                    corrected[10 * b : 10 * b + 10], own[10 * b : 10 * b + 10], free[10 * b : 10 * b + 10], ext.notes, n
                 )
+                if plant.carries_body[b]
+                else corrected[10 * b : 10 * b + 10]
                 for b, n in enumerate(plant.body_names)
             ]
         )
-    for b, name in enumerate(plant.body_names):
-        theta = corrected[10 * b : 10 * b + 10]
-        if np.allclose(theta, plant.theta[10 * b : 10 * b + 10], rtol=0, atol=0):
+    for j in range(plant.nv):
+        delta = corrected[10 * j : 10 * j + 10] - own[10 * j : 10 * j + 10]
+        if not np.any(delta):
             continue
-        m, c, inertia = _inertial(theta)
-        body = spec.body(name)
-        body.mass, body.ipos, body.iquat = m, c, np.array([1.0, 0.0, 0.0, 0.0])
-        body.fullinertia = np.array(
-            [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
-        )
-        body.explicitinertial = True
+        if plant.carries_body[j]:
+            _write_inertial(spec, plant, j, corrected[10 * j : 10 * j + 10])
+        else:
+            ext.notes.append(
+                f"{plant.joint_names[j]}: an inertial change on a joint that carries no body of its own cannot be "
+                "written to the MJCF; left out"
+            )
     m = plant.mj_model
     for a in range(m.nu):
         j = int(m.jnt_dofadr[m.actuator_trnid[a, 0]])
@@ -389,7 +359,7 @@ def predict_measured_torque(
 
     `calibrated` carries the joint offsets as `ref`, so q is the measured angle.
     """
-    tau = model_torque(calibrated, q, dq, ddq)
+    tau = joint_torque(calibrated, q, dq, ddq)[0]
     out = tau.copy()
     for j in range(calibrated.nv):
         if ext.delay_s[j] != 0:

@@ -36,12 +36,13 @@ import mujoco
 import numpy as np
 from scipy import signal as sp_signal
 
+from dynamics.base import base_parameters
+from dynamics.plant import INERTIAL_SYMBOLS, Plant
+from dynamics.regressor import ParameterModel, rigid_body_regressor
+from dynamics.sampling import independent_columns, random_states
+from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset
-from envs.plant import INERTIAL_SYMBOLS, Plant
-from identify.base import base_parameters
 from identify.derivatives import States
-from identify.diagnose.torque import model_torque, torque_jacobian_q
-from identify.model import ParameterModel, rigid_body_regressor
 
 __all__ = ["CANDIDATE_EFFECTS", "Candidate", "Signals", "candidates", "rotor_chain", "signals", "stack_signals"]
 
@@ -113,7 +114,7 @@ def signals(plant: Plant, data: Dataset, states: States, *, record: int = 0, ban
     rows = np.arange(rows[0], rows[-1] + 1)
     q, dq, ddq = states.q[rows], states.dq[rows], states.ddq[rows]
     time = data.time[rows]
-    tau_nom = model_torque(plant, q, dq, ddq)
+    tau_nom = joint_torque(plant, q, dq, ddq)[0]
     return Signals(
         time=time,
         q=q,
@@ -299,36 +300,15 @@ def _rotor_couplings(plant: Plant) -> list[Candidate]:
     return out
 
 
-def _independent(W: np.ndarray, order: list[int], tol: float = 1e-7) -> list[int]:
-    """Columns of W (rows, p), taken in `order`, that are not in the span of the ones kept before them."""
-    norms = np.linalg.norm(W, axis=0)
-    basis = np.zeros((W.shape[0], 0))
-    keep: list[int] = []
-    for c in order:
-        if norms[c] <= tol * max(float(norms.max()), 1e-300):
-            continue
-        v = W[:, c] / norms[c]
-        for _ in range(2):
-            v = v - basis @ (basis.T @ v)
-        if np.linalg.norm(v) > 1e-6:
-            basis = np.column_stack([basis, v / np.linalg.norm(v)])
-            keep.append(c)
-    return keep
-
-
 def _random_regressor(plant: Plant, rng: np.random.Generator, n: int = 300) -> np.ndarray:
-    lo = np.where(np.isfinite(plant.q_range[:, 0]), plant.q_range[:, 0], -np.pi)
-    hi = np.where(np.isfinite(plant.q_range[:, 1]), plant.q_range[:, 1], np.pi)
-    q = rng.uniform(lo, hi, size=(n, plant.nv))
-    W = rigid_body_regressor(plant, q, rng.normal(0, 3, (n, plant.nv)), rng.normal(0, 10, (n, plant.nv)))
-    return W.reshape(n * plant.nv, -1)
+    return rigid_body_regressor(plant, *random_states(plant, rng, n)).reshape(n * plant.nv, -1)
 
 
 def _payloads(plant: Plant, rng: np.random.Generator) -> list[Candidate]:
     """A body's identifiable inertial columns with every other body held at its nominal values."""
     W, out = _random_regressor(plant, rng), []
     for b, body in enumerate(plant.body_names):
-        cols = _independent(W, list(range(10 * b, 10 * b + 10)))
+        cols = independent_columns(W, list(range(10 * b, 10 * b + 10)), zero_tol=1e-7)
         if not cols or cols[0] != 10 * b:
             continue  # the body's mass is not identifiable (it does not move the joints' torques)
         idx = np.array(cols)

@@ -18,9 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from dynamics.base import base_parameters
+from dynamics.plant import Plant, plant_from_xml
+from dynamics.regressor import ParameterModel
+from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset
-from envs.plant import Plant, plant_from_xml
-from identify.base import base_parameters
 from identify.derivatives import States, derive_states
 from identify.diagnose.calibrate import (
     Extension,
@@ -34,8 +36,6 @@ from identify.diagnose.candidates import Candidate, Signals, candidates, signals
 from identify.diagnose.residuals import analyse_residual, noise_floor, whiteness
 from identify.diagnose.select import LinearFit, SelectionOptions, Step, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
-from identify.diagnose.torque import model_torque, torque_jacobian_q
-from identify.model import ParameterModel
 
 __all__ = ["DEFAULT_EFFECTS", "Diagnosis", "Finding", "ReferenceModel", "diagnose"]
 
@@ -453,7 +453,7 @@ def _final_fit(
                 shift[j] += fit.coef[c]
                 previous[c] = 0.0
             q = s.q - shift
-            nominal = model_torque(plant, q, s.dq, s.ddq)
+            nominal = joint_torque(plant, q, s.dq, s.ddq)[0]
             jac = torque_jacobian_q(plant, q, s.dq, s.ddq)
             for c, j in offsets:
                 X[:, :, c] = s.smooth(-jac[:, :, j])

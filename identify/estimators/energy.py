@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 from scipy import integrate
 
-from envs.errors import RankDeficientError
+from dynamics.errors import RankDeficientError
 from identify.estimators.signals import span, torque_sigma
 from identify.problem import Estimate, Problem
 

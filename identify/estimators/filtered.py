@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.errors import RankDeficientError
+from dynamics.errors import RankDeficientError
 from identify.estimators.signals import filtered_model, torque_sigma
 from identify.problem import Estimate, Problem
 

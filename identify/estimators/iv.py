@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from envs.errors import RankDeficientError
-from identify.base import BaseParameters
+from dynamics.base import BaseParameters
+from dynamics.errors import RankDeficientError
+from dynamics.regressor import EFFECT_COLUMNS, ParameterModel
 from identify.derivatives import derive_states, excitation_bandwidth_hz
 from identify.estimators.least_squares import ols
 from identify.estimators.signals import span, torque_sigma
-from identify.model import EFFECT_COLUMNS, ParameterModel
 from identify.problem import Estimate, Problem
 
 __all__ = ["iv", "simulate_model", "standard_from_base"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.errors import RankDeficientError
+from dynamics.errors import RankDeficientError
 from identify.problem import Estimate, Problem
 
 __all__ = ["ols", "wls"]

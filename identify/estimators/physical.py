@@ -19,86 +19,16 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize
 
-from identify.base import BaseParameters
+from dynamics.base import BaseParameters
+from dynamics.inertia import body_and_jacobian, log_cholesky_from_body, pseudo_inertia
+from dynamics.regressor import EFFECT_COLUMNS, ParameterModel
 from identify.estimators.least_squares import ols
 from identify.estimators.signals import torque_sigma
-from identify.model import EFFECT_COLUMNS, ParameterModel
 from identify.problem import Estimate, Problem
 
-__all__ = ["body_from_log_cholesky", "log_cholesky_from_body", "physical", "pseudo_inertia"]
+__all__ = ["physical"]
 
 _SIGNED_EFFECTS = {"torque_offset"}
-
-
-def pseudo_inertia(body: np.ndarray) -> np.ndarray:
-    """(4, 4) pseudo-inertia of one body's 10 parameters (m, MX, MY, MZ, XX, XY, YY, XZ, YZ, ZZ)."""
-    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = body
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    J = np.empty((4, 4))
-    J[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
-    J[:3, 3] = J[3, :3] = hx, hy, hz
-    J[3, 3] = m
-    return J
-
-
-def _from_pseudo(J: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) pseudo-inertia -> (..., 10) body parameters (linear)."""
-    S = J[..., :3, :3]
-    return np.stack(
-        [
-            J[..., 3, 3],
-            J[..., 0, 3],
-            J[..., 1, 3],
-            J[..., 2, 3],
-            S[..., 1, 1] + S[..., 2, 2],
-            -S[..., 0, 1],
-            S[..., 0, 0] + S[..., 2, 2],
-            -S[..., 0, 2],
-            -S[..., 1, 2],
-            S[..., 0, 0] + S[..., 1, 1],
-        ],
-        axis=-1,
-    )
-
-
-# where each of the 10 variables (a, d1, d2, d3, s12, s23, s13, t1, t2, t3) sits in U (a scales all of U)
-_ENTRY = ((0, 0), (1, 1), (2, 2), (0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3))
-
-
-def _body_and_jacobian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(10,) consistent body parameters from 10 unconstrained numbers, and their (10, 10) Jacobian."""
-    a, d1, d2, d3 = np.clip(x[:4], -40.0, 40.0)
-    s12, s23, s13, t1, t2, t3 = x[4:]
-    scale = np.exp(a)
-    U = scale * np.array(
-        [[np.exp(d1), s12, s13, t1], [0.0, np.exp(d2), s23, t2], [0.0, 0.0, np.exp(d3), t3], [0.0, 0.0, 0.0, 1.0]]
-    )
-    dU = np.zeros((10, 4, 4))
-    dU[0] = U
-    for i, (r, c) in enumerate(_ENTRY):
-        dU[i + 1, r, c] = U[r, c] if i < 3 else scale
-    dJ = dU @ U.T
-    dJ = dJ + np.swapaxes(dJ, 1, 2)
-    return _from_pseudo(U @ U.T), _from_pseudo(dJ).T
-
-
-def body_from_log_cholesky(x: np.ndarray) -> np.ndarray:
-    """(10,) consistent body parameters from the 10 unconstrained numbers (a, d1, d2, d3, s12, s23, s13, t1-3)."""
-    return _body_and_jacobian(np.asarray(x, float))[0]
-
-
-def log_cholesky_from_body(body: np.ndarray, *, floor: float = 1e-9) -> np.ndarray:
-    """Inverse of `body_from_log_cholesky`; an inconsistent body is first lifted to eigenvalues >= floor * m."""
-    J = pseudo_inertia(body)
-    w, V = np.linalg.eigh(J)
-    J = (V * np.maximum(w, floor * max(abs(body[0]), 1e-6))) @ V.T
-    # U U' = J with U upper triangular: reverse-order Cholesky
-    flip = np.eye(4)[::-1]
-    L = np.linalg.cholesky(flip @ J @ flip)
-    U = flip @ L @ flip
-    a = np.log(U[3, 3])
-    U = U / U[3, 3]
-    return np.array([a, *np.log(np.diag(U)[:3]), U[0, 1], U[1, 2], U[0, 2], U[0, 3], U[1, 3], U[2, 3]])
 
 
 def _effect_signs(model: ParameterModel) -> np.ndarray:
@@ -114,7 +44,7 @@ def _theta_and_jacobian(model: ParameterModel, x: np.ndarray) -> tuple[np.ndarra
     theta, jac = np.empty(p), np.zeros((p, p))
     for j in range(nv):
         cut = slice(10 * j, 10 * j + 10)
-        theta[cut], jac[cut, cut] = _body_and_jacobian(x[cut])
+        theta[cut], jac[cut, cut] = body_and_jacobian(x[cut])
     effects = x[10 * nv :].copy()
     slope = np.ones_like(effects)
     positive = _effect_signs(model)

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.errors import RankDeficientError
-from identify.model import ParameterModel
+from dynamics.errors import RankDeficientError
+from dynamics.regressor import ParameterModel
+from dynamics.sampling import independent_columns, random_states
 
 __all__ = ["BaseParameters", "base_parameters"]
 
@@ -59,25 +60,8 @@ def base_parameters(
         tol: a column is dependent when its residual, after projecting out the kept columns, is below
             tol times its norm.
     """
-    nv = model.plant.nv
-    lo = np.where(np.isfinite(model.plant.q_range[:, 0]), model.plant.q_range[:, 0], -np.pi)
-    hi = np.where(np.isfinite(model.plant.q_range[:, 1]), model.plant.q_range[:, 1], np.pi)
-    q = rng.uniform(lo, hi, size=(n_samples, nv))
-    dq = rng.normal(0.0, 3.0, size=(n_samples, nv))
-    ddq = rng.normal(0.0, 10.0, size=(n_samples, nv))
-    W = model.regressor(q, dq, ddq).reshape(n_samples * nv, -1)
-    norms = np.linalg.norm(W, axis=0)
-    basis = np.zeros((W.shape[0], 0))
-    keep: list[int] = []
-    for c in range(W.shape[1]):
-        if norms[c] <= tol * norms.max():  # a column zero up to rounding (e.g. a mass moment along its own axis)
-            continue
-        v = W[:, c] / norms[c]
-        for _ in range(2):  # re-orthogonalise once: classical Gram-Schmidt twice is stable enough here
-            v = v - basis @ (basis.T @ v)
-        if np.linalg.norm(v) > tol * 1e3:
-            basis = np.column_stack([basis, v / np.linalg.norm(v)])
-            keep.append(c)
+    W = model.regressor(*random_states(model.plant, rng, n_samples)).reshape(n_samples * model.plant.nv, -1)
+    keep = independent_columns(W, zero_tol=tol, span_tol=tol * 1e3)
     if not keep:
         raise RankDeficientError(f"{model.plant.name}: the regressor is zero; nothing is identifiable")
     indep = np.array(keep)

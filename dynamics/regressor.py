@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from envs.plant import Plant
+from dynamics.plant import Plant
 
 __all__ = ["EFFECT_COLUMNS", "ParameterModel", "rigid_body_regressor"]
 

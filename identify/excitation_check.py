@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.errors import DataError
+from dynamics.errors import DataError
 
 __all__ = ["ExcitationCheck", "check_excitation"]
 

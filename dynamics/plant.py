@@ -1,0 +1,328 @@
+"""A plant: one model as MuJoCo compiles it, the same model in Pinocchio (regressor), and the truth read from it.
+
+The Pinocchio model is built from the compiled `MjModel`, never from a second reading of the user's file:
+body frames, joint anchors and axes, joint `ref`, and body inertias exactly as MuJoCo computed them (from
+geoms or from an explicit `<inertial>` in any form). At load, Pinocchio's inverse dynamics is checked
+against MuJoCo's at random states; a model on which they disagree is refused.
+
+Kinematics follow MuJoCo's `mj_kinematics`: the joints of a body act one after another in the body's own
+(already moved) frame, a hinge about its anchor `jnt_pos`, a slide along its axis, each by `qpos - qpos0`.
+A joint's Pinocchio frame sits at its anchor with the body's orientation, turned by `-ref` about the axis,
+so Pinocchio's q equals MuJoCo's qpos. Bodies without joints are welded to the joint that moves their
+parent; each Pinocchio joint carries the inertia of every body it moves rigidly.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from dynamics.errors import ModelError
+from dynamics.inertia import from_mass_com_inertia, transform_parameters
+from dynamics.sampling import random_states
+
+__all__ = [
+    "INERTIAL_SYMBOLS",
+    "MJCF_DIR",
+    "SYSTEMS",
+    "Plant",
+    "check_against_mujoco",
+    "load_plant",
+    "mjcf_path",
+    "own_body_parameters",
+    "pinocchio_from_mujoco",
+    "plant_from_model",
+    "plant_from_xml",
+]
+
+MJCF_DIR = Path(__file__).resolve().parent.parent / "mjcf"
+SYSTEMS = ("arm3", "pendulum", "two_link", "wheel_pendulum")
+
+# Pinocchio's order of the 10 standard parameters of a body, expressed at the joint frame's origin.
+INERTIAL_SYMBOLS = ("m", "MX", "MY", "MZ", "XX", "XY", "YY", "XZ", "YZ", "ZZ")
+
+# relative agreement required between Pinocchio's and MuJoCo's inverse dynamics at load
+_CHECK_RTOL = 1e-7
+
+
+def mjcf_path(system: str) -> Path:
+    """Path of a built-in system's MJCF, or of a user's MJCF file given by path.
+
+    Raises:
+        ValueError: unknown system name (the message lists the valid ones) or missing file.
+    """
+    candidate = Path(system)
+    if candidate.suffix == ".xml":
+        if candidate.is_dir():
+            raise ValueError(f"MJCF path is a directory, not a file: {candidate}")
+        if not candidate.is_file():
+            raise ValueError(f"MJCF file not found: {candidate}")
+        return candidate
+    if system not in SYSTEMS:
+        raise ValueError(f"unknown system {system!r}; valid choices: {', '.join(SYSTEMS)} (or a path to an .xml)")
+    return MJCF_DIR / f"{system}.xml"
+
+
+@dataclass(frozen=True, eq=False)
+class Plant:
+    """One compiled MuJoCo model and its Pinocchio twin, with the quantities the harness reads from it.
+
+    Attributes:
+        name: system name (the MJCF's file stem).
+        path: the MJCF file.
+        mj_model: MuJoCo model (simulation, inverse dynamics).
+        pin_model: Pinocchio model built from `mj_model` (regressor), one joint per MuJoCo dof.
+        joint_names: (nv,) names of the 1-DoF joints, in generalised-coordinate order.
+        body_names: (nv,) name of the body each joint moves.
+        carries_body: (nv,) True where the joint is its body's last joint, so its inertia block holds that
+            body (and the bodies welded to it); an earlier joint of a multi-joint body carries no inertia.
+        joint_from_body: (nv, 4, 4) pose of the moved body's frame in the joint's frame (homogeneous).
+        actuated: (nv,) True where an actuator drives the joint.
+        gear: (nv,) actuator transmission (joint torque = gear * actuator force); 0 where unactuated.
+        q_range: (nv, 2) joint range [rad or m]; +-inf where the joint is unlimited.
+        tau_limit: (nv,) largest joint torque the actuator can apply [N m]; 0 where unactuated.
+        theta: (10 nv,) true standard inertial parameters, 10 per joint in `INERTIAL_SYMBOLS` order,
+            about the joint frame's origin [kg, kg m, kg m^2].
+        armature, damping, frictionloss, stiffness, springref: (nv,) joint properties of the model
+            [kg m^2, N m s/rad, N m, N m/rad, rad].
+    """
+
+    name: str
+    path: Path
+    mj_model: mujoco.MjModel
+    pin_model: pin.Model
+    joint_names: tuple[str, ...]
+    body_names: tuple[str, ...]
+    carries_body: np.ndarray
+    joint_from_body: np.ndarray
+    actuated: np.ndarray
+    gear: np.ndarray
+    q_range: np.ndarray
+    tau_limit: np.ndarray
+    theta: np.ndarray
+    armature: np.ndarray
+    damping: np.ndarray
+    frictionloss: np.ndarray
+    stiffness: np.ndarray
+    springref: np.ndarray
+
+    @property
+    def nv(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of `theta`: symbol and 1-based joint index, e.g. `ZZ1`, `m2`."""
+        return tuple(f"{s}{j + 1}" for j in range(self.nv) for s in INERTIAL_SYMBOLS)
+
+
+def load_plant(system: str | Path) -> Plant:
+    """Load a built-in system by name (see `SYSTEMS`) or any MJCF of hinge and slide joints by path.
+
+    Raises:
+        ValueError: unknown system name or missing file.
+        ModelError: MuJoCo cannot compile it, it has joints or couplings the harness does not support, or
+            MuJoCo and Pinocchio disagree on its dynamics.
+    """
+    path = mjcf_path(str(system))
+    try:
+        mj_model = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as err:
+        raise ModelError(f"{path}: MuJoCo cannot load it: {err}") from err
+    return plant_from_model(path, mj_model)
+
+
+def plant_from_xml(xml: str, name: str, directory: Path) -> Plant:
+    """Build a plant from MJCF text (a calibrated or effect-laden variant), written under `directory`."""
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"{name}.xml"
+    path.write_text(xml)
+    return load_plant(path)
+
+
+def _name(m: mujoco.MjModel, kind: mujoco.mjtObj, i: int) -> str:
+    return mujoco.mj_id2name(m, kind, i) or f"{kind.name.removeprefix('mjOBJ_').lower()}{i}"
+
+
+def _check_scope(path: Path, m: mujoco.MjModel) -> None:
+    """Refuse what the rigid-body regressor does not model: other joint types and joint couplings."""
+    simple = {int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)}
+    bad = [
+        f"{_name(m, mujoco.mjtObj.mjOBJ_JOINT, j)} ({mujoco.mjtJoint(m.jnt_type[j]).name.removeprefix('mjJNT_')})"
+        for j in range(m.njnt)
+        if m.jnt_type[j] not in simple
+    ]
+    if bad:
+        raise ModelError(f"{path}: only hinge and slide joints are supported (no free or ball joints); found {bad}")
+    if m.neq:
+        raise ModelError(
+            f"{path}: {m.neq} equality constraint(s) couple joints or close a chain; closed chains and coupled "
+            "joints are not supported (remove the <equality> elements)"
+        )
+    if m.ntendon:
+        raise ModelError(f"{path}: {m.ntendon} tendon(s) couple joints; tendons are not supported")
+    if np.any(m.body_gravcomp != 0):
+        bodies = [_name(m, mujoco.mjtObj.mjOBJ_BODY, int(b)) for b in np.flatnonzero(m.body_gravcomp)]
+        raise ModelError(f"{path}: gravity compensation (gravcomp) on bodies {bodies} is not supported")
+    if m.opt.density != 0 or m.opt.viscosity != 0:
+        raise ModelError(f"{path}: fluid forces (option density/viscosity) are not supported")
+    for a in range(m.nu):
+        if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
+            raise ModelError(
+                f"{path}: actuator {_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)} is not a joint transmission"
+            )
+
+
+def _se3(quat: np.ndarray, pos: np.ndarray) -> pin.SE3:
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
+    return pin.SE3(R.reshape(3, 3), np.asarray(pos, dtype=float))
+
+
+def _axis_rotation(axis: np.ndarray, angle: float) -> pin.SE3:
+    return pin.SE3(pin.AngleAxis(angle, axis).matrix(), np.zeros(3))
+
+
+def _body_inertia(m: mujoco.MjModel, b: int) -> pin.Inertia:
+    """Body b's inertia in its own frame, as MuJoCo compiled it (mass, centre, principal axes and moments)."""
+    R = _se3(m.body_iquat[b], np.zeros(3)).rotation
+    return pin.Inertia(float(m.body_mass[b]), m.body_ipos[b].copy(), R @ np.diag(m.body_inertia[b]) @ R.T)
+
+
+def pinocchio_from_mujoco(m: mujoco.MjModel) -> tuple[pin.Model, np.ndarray, np.ndarray]:
+    """The Pinocchio model of a compiled MuJoCo model of hinge and slide joints.
+
+    Returns:
+        model: one Pinocchio joint per MuJoCo joint, in MuJoCo's order and with its names; armature and
+            gravity as MuJoCo has them.
+        carries_body: (nv,) True where the joint is its body's last joint.
+        joint_from_body: (nv, 4, 4) the moved body's frame in each joint's frame.
+    """
+    pm = pin.Model()
+    pm.name = "sysid"
+    nv = m.nv
+    carries = np.zeros(nv, dtype=bool)
+    joint_from_body = np.tile(np.eye(4), (nv, 1, 1))
+    # for every MuJoCo body: the Pinocchio joint that moves it and its frame in that joint's frame
+    frame: list[tuple[int, pin.SE3]] = [(0, pin.SE3.Identity())]
+    for b in range(1, m.nbody):
+        parent_joint, parent_frame = frame[int(m.body_parentid[b])]
+        current = parent_frame * _se3(m.body_quat[b], m.body_pos[b])
+        joint = parent_joint
+        for j in range(int(m.body_jntadr[b]), int(m.body_jntadr[b]) + int(m.body_jntnum[b])):
+            axis = np.asarray(m.jnt_axis[j], dtype=float)
+            anchor = pin.SE3(np.eye(3), np.asarray(m.jnt_pos[j], dtype=float))
+            ref = float(m.qpos0[m.jnt_qposadr[j]])
+            if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE:
+                placement = current * anchor * _axis_rotation(axis, -ref)
+                model: object = pin.JointModelRevoluteUnaligned(*axis)
+            else:
+                placement = current * anchor * pin.SE3(np.eye(3), -ref * axis)
+                model = pin.JointModelPrismaticUnaligned(*axis)
+            joint = pm.addJoint(joint, model, placement, _name(m, mujoco.mjtObj.mjOBJ_JOINT, j))
+            current = anchor.inverse()
+        pm.appendBodyToJoint(joint, _body_inertia(m, b), current)
+        if int(m.body_jntnum[b]):
+            last = int(m.jnt_dofadr[int(m.body_jntadr[b]) + int(m.body_jntnum[b]) - 1])
+            carries[last] = True
+            joint_from_body[last] = current.homogeneous
+        frame.append((joint, current))
+    pm.armature = np.asarray(m.dof_armature, dtype=float).copy()
+    gravity_off = m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
+    pm.gravity = pin.Motion(np.zeros(3) if gravity_off else np.asarray(m.opt.gravity, dtype=float), np.zeros(3))
+    return pm, carries, joint_from_body
+
+
+def own_body_parameters(plant: Plant) -> np.ndarray:
+    """(10 nv,) each joint's own body (the one it moves, without bodies welded to it) in the joint's frame.
+
+    Zero for a joint that carries no body (an earlier joint of a multi-joint body). Equals `plant.theta`
+    where no body is welded to another.
+    """
+    m = plant.mj_model
+    out = np.zeros(10 * plant.nv)
+    for j in np.flatnonzero(plant.carries_body):
+        b = int(m.jnt_bodyid[m.dof_jntid[j]])
+        inertia = _body_inertia(m, b)
+        body = from_mass_com_inertia(inertia.mass, inertia.lever, inertia.inertia)
+        out[10 * j : 10 * j + 10] = transform_parameters(body, plant.joint_from_body[j])
+    return out
+
+
+def check_against_mujoco(plant: Plant, rng: np.random.Generator, *, n_states: int = 20) -> None:
+    """Refuse a plant whose Pinocchio inverse dynamics differs from MuJoCo's at random states.
+
+    Compared: RNEA (with armature) plus damping and stiffness against `mj_inverse` with constraints off.
+
+    Raises:
+        ModelError: naming the joint with the largest difference and its size.
+    """
+    from dynamics.torque import inverse_dynamics, joint_torque  # torque builds on the plant
+
+    m = copy.deepcopy(plant.mj_model)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)  # no limits, contacts or frictionloss
+    q, dq, ddq = random_states(plant, rng, n_states)
+    ours = joint_torque(plant, q, dq, ddq, coulomb=False)[0]
+    theirs = inverse_dynamics(m, q, dq, ddq)
+    diff = np.abs(ours - theirs)
+    scale = 1.0 + float(np.max(np.abs(theirs)))
+    if float(diff.max()) > _CHECK_RTOL * scale:
+        k, j = np.unravel_index(int(np.argmax(diff)), diff.shape)
+        raise ModelError(
+            f"{plant.path}: Pinocchio's inverse dynamics differs from MuJoCo's by {diff[k, j]:.3g} N m at joint "
+            f"{plant.joint_names[j]!r} (largest |tau| {scale - 1:.3g} N m); the model uses a feature the harness "
+            "does not reproduce"
+        )
+
+
+def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Plant:
+    """The plant of a compiled MuJoCo model (`path` names its file).
+
+    Raises:
+        ModelError: unsupported joints or couplings, or (with `check`) MuJoCo and Pinocchio disagree.
+    """
+    _check_scope(path, m)
+    pm, carries, joint_from_body = pinocchio_from_mujoco(m)
+    nv = m.nv
+    names = tuple(_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt))
+    gear = np.zeros(nv)
+    tau_limit = np.zeros(nv)
+    for a in range(m.nu):
+        j = int(m.jnt_dofadr[m.actuator_trnid[a, 0]])
+        gear[j] += m.actuator_gear[a, 0]
+        limit = np.inf
+        if m.actuator_ctrllimited[a]:
+            limit = float(np.max(np.abs(m.actuator_ctrlrange[a]))) * abs(m.actuator_gear[a, 0])
+        if m.actuator_forcelimited[a]:
+            limit = min(limit, float(np.max(np.abs(m.actuator_forcerange[a]))) * abs(m.actuator_gear[a, 0]))
+        tau_limit[j] += limit
+    q_range = np.where(m.jnt_limited[:, None].astype(bool), m.jnt_range, [-np.inf, np.inf])
+    theta = np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])
+    plant = Plant(
+        name=path.stem,
+        path=path,
+        mj_model=m,
+        pin_model=pm,
+        joint_names=names,
+        body_names=tuple(_name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.jnt_bodyid[j])) for j in range(m.njnt)),
+        carries_body=carries,
+        joint_from_body=joint_from_body,
+        actuated=gear != 0,
+        gear=gear,
+        q_range=np.asarray(q_range, dtype=float),
+        tau_limit=tau_limit,
+        theta=theta,
+        armature=m.dof_armature.copy(),
+        damping=m.dof_damping.copy(),
+        frictionloss=m.dof_frictionloss.copy(),
+        stiffness=m.jnt_stiffness.copy(),
+        springref=m.qpos_spring.copy(),
+    )
+    if check:
+        check_against_mujoco(plant, np.random.default_rng(0))
+    return plant
