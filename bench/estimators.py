@@ -34,10 +34,9 @@ from envs.dataset import Dataset
 from envs.sensors import SensorModel
 from envs.simulate import simulate_tracking
 from excitation.fourier import FourierDesign
-from excitation.limits import limits_for
 from excitation.registry import design_excitation
 from harness.progress import printer
-from harness.run import CONF_DIR
+from harness.setup import CONF_DIR, limits_from_config
 from identify.derivatives import derive_states
 from identify.estimators import estimate
 from identify.problem import build_problem
@@ -81,13 +80,7 @@ def _case(system: str) -> Case:
     plant = load_plant(cfg.mjcf)
     model = ParameterModel(plant, tuple(cfg.effects))
     base = base_parameters(model, np.random.default_rng(0))
-    limits = limits_for(
-        plant,
-        velocity=_plain(cfg.limits.velocity),
-        acceleration=_plain(cfg.limits.acceleration),
-        range_margin=float(cfg.limits.range_margin),
-        torque_margin=float(cfg.limits.torque_margin),
-    )
+    limits = limits_from_config(cfg, plant)
     kw = {"model": model, "harmonics": 5, "base_freq_hz": float(cfg.base_freq_hz), "torque_driven": False}
     # a random feasible design: the default one moves every joint along the same two signals (its phases are
     # separable in joint and harmonic), which leaves the energy model one combination short on arm3

@@ -24,9 +24,9 @@ from dynamics.plant import MJCF_DIR, load_plant
 from dynamics.regressor import ParameterModel
 from excitation.designs import grid, random_design
 from excitation.fourier import FourierDesign
-from excitation.limits import Limits, limits_for
+from excitation.limits import Limits
 from excitation.optimise import assess_design, optimise_excitation
-from harness.run import CONF_DIR
+from harness.setup import CONF_DIR, limits_from_config
 
 HERE = Path(__file__).resolve().parent
 SYSTEMS = ("pendulum", "two_link", "wheel_pendulum", "arm3")
@@ -37,17 +37,7 @@ def _setup(system: str) -> tuple[Any, Any, Limits, ParameterModel, BaseParameter
     cfg = OmegaConf.load(CONF_DIR / "system" / f"{system}.yaml")
     plant = load_plant(cfg.mjcf)
 
-    def plain(value: Any) -> float | list[float]:
-        return [float(v) for v in value] if OmegaConf.is_list(value) else float(value)
-
-    lim = cfg.limits
-    limits = limits_for(
-        plant,
-        velocity=plain(lim.velocity),
-        acceleration=plain(lim.acceleration),
-        range_margin=float(lim.range_margin),
-        torque_margin=float(lim.torque_margin),
-    )
+    limits = limits_from_config(cfg, plant)
     model = ParameterModel(plant, tuple(cfg.effects))
     return cfg, plant, limits, model, base_parameters(model, np.random.default_rng(SEED))
 

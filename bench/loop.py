@@ -12,7 +12,8 @@ from pathlib import Path
 from hydra import compose, initialize_config_dir
 
 from dynamics.plant import MJCF_DIR
-from harness.run import CONF_DIR, run
+from harness.run import run
+from harness.setup import CONF_DIR
 
 HERE = Path(__file__).resolve().parent
 SYSTEMS = ("pendulum", "two_link", "wheel_pendulum", "arm3")

@@ -45,7 +45,7 @@ from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
 from excitation.registry import EXCITATIONS
-from harness.run import CONF_DIR, design_from_config, experiment_from_config, simulate_design
+from harness.setup import CONF_DIR, design_from_config, experiment_from_config, simulate_design
 from identify.compare import predict_torque, torque_rms
 from identify.derivatives import States, derive_states
 from identify.diagnose.simulation_error import ode_stepper, simulation_error

@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,40 +15,28 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from dynamics.base import BaseParameters, base_parameters
-from dynamics.plant import Plant, load_plant
+from dynamics.base import BaseParameters
+from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
 from envs.dataset import Dataset, write_csv
-from envs.sensors import SensorModel
-from envs.simulate import simulate_open_loop, simulate_tracking
 from excitation.criteria import conditioning
 from excitation.designs import grid
 from excitation.fourier import FourierDesign
-from excitation.limits import Limits, limits_for
-from excitation.registry import EXCITATIONS, design_excitation
-from harness.progress import Progress, printer
+from excitation.limits import Limits
+from excitation.registry import EXCITATIONS
+from harness.progress import printer
 from harness.results import run_job, summary_table, write_json
+from harness.setup import CONF_DIR, design_from_config, experiment_from_config, simulate_design
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
 from identify.derivatives import DERIVATIVES, derive_states
 from identify.derived import DERIVED
 from identify.estimators import ESTIMATORS, estimate
 from identify.problem import Estimate, Problem, build_problem
 
-__all__ = [
-    "CONF_DIR",
-    "Experiment",
-    "design_from_config",
-    "experiment_from_config",
-    "main",
-    "run",
-    "sensor_from_config",
-    "simulate_design",
-]
+__all__ = ["main", "run"]
 
 RECORD_KINDS = ("none", "rerun")
-# absolute, so that the entry point finds the configs wherever it is called from
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 @contextmanager
@@ -69,35 +56,6 @@ def _check_choices(cfg: DictConfig) -> None:
     ):
         if name not in valid:
             raise ValueError(f"unknown {label} {name!r}; valid choices: {', '.join(sorted(valid))}")
-
-
-def sensor_from_config(cfg: DictConfig, plant: Plant) -> SensorModel:
-    """The sensor model of a system config scaled by the noise config."""
-    sigma_tau = np.broadcast_to(np.asarray(cfg.system.sensor.sigma_tau, dtype=float), (plant.nv,))
-    return SensorModel(
-        sample_rate_hz=float(cfg.system.sensor.sample_rate_hz),
-        sigma_q=float(cfg.noise.sigma_q),
-        q_resolution=float(cfg.noise.q_resolution),
-        sigma_tau=sigma_tau * float(cfg.noise.tau_scale),
-        tau_resolution=float(cfg.system.sensor.tau_resolution) * float(cfg.noise.tau_scale),
-    )
-
-
-def simulate_design(
-    plant: Plant, design: FourierDesign, cfg: DictConfig, sensor: SensorModel, rng: np.random.Generator, periods: float
-) -> Dataset:
-    """Simulate `periods` periods of a design: tracked (position design) or applied open loop (torque design)."""
-    duration = periods * design.period_s
-    if cfg.system.torque_driven:
-        return simulate_open_loop(plant, design.torque, duration_s=duration, sensor=sensor, rng=rng)
-    return simulate_tracking(
-        plant,
-        design,
-        duration_s=duration,
-        sensor=sensor,
-        rng=rng,
-        bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
-    )
 
 
 def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Dataset, torque_driven: bool) -> dict:
@@ -131,51 +89,6 @@ def _identify(
     problem = build_problem(data, states, model, base)
     options = OmegaConf.to_container(cfg.estimator.options, resolve=True)
     return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
-
-
-@dataclass(frozen=True)
-class Experiment:
-    """What a system config sets up: the plant, its limits, the parameters to identify and the sensors."""
-
-    plant: Plant
-    limits: Limits
-    model: ParameterModel
-    base: BaseParameters
-    sensor: SensorModel
-
-
-def experiment_from_config(cfg: DictConfig, rng: np.random.Generator) -> Experiment:
-    """The plant, limits, parameter model (with its base parameters, found with `rng`) and sensor of `cfg`."""
-    plant = load_plant(cfg.system.mjcf)
-    lim = cfg.system.limits
-    limits = limits_for(
-        plant,
-        velocity=list(lim.velocity) if OmegaConf.is_list(lim.velocity) else lim.velocity,
-        acceleration=list(lim.acceleration) if OmegaConf.is_list(lim.acceleration) else lim.acceleration,
-        range_margin=float(lim.range_margin),
-        torque_margin=float(lim.torque_margin),
-    )
-    model = ParameterModel(plant, tuple(cfg.system.effects))
-    return Experiment(plant, limits, model, base_parameters(model, rng), sensor_from_config(cfg, plant))
-
-
-def design_from_config(
-    cfg: DictConfig, exp: Experiment, name: str, rng: np.random.Generator, *, progress: Progress | None = None
-) -> FourierDesign:
-    """The excitation `name` for the experiment; the config's options apply to the configured design only."""
-    options = OmegaConf.to_container(cfg.excitation.options, resolve=True) if name == cfg.excitation.name else {}
-    return design_excitation(
-        name,
-        exp.plant,
-        exp.limits,
-        model=exp.model,
-        harmonics=int(cfg.excitation.harmonics),
-        base_freq_hz=float(cfg.system.base_freq_hz),
-        torque_driven=bool(cfg.system.torque_driven),
-        rng=rng,
-        progress=progress,
-        **options,  # type: ignore[arg-type]
-    )
 
 
 def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:

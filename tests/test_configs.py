@@ -10,7 +10,7 @@ import pytest
 
 from dynamics.plant import load_plant
 from excitation.registry import EXCITATIONS
-from harness.run import CONF_DIR
+from harness.setup import CONF_DIR
 from identify.estimators import ESTIMATORS
 from tests.conftest import compose_config
 

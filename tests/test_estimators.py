@@ -24,7 +24,7 @@ from envs.sensors import SensorModel
 from excitation.fourier import FourierDesign
 from excitation.limits import limits_for
 from excitation.registry import design_excitation
-from harness.run import CONF_DIR, simulate_design
+from harness.setup import CONF_DIR, simulate_design
 from identify.compare import predict_torque
 from identify.derivatives import States, derive_states
 from identify.estimators import ESTIMATORS, estimate

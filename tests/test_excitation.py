@@ -26,7 +26,7 @@ from excitation.optimise import (
     optimise_excitation,
 )
 from excitation.registry import EXCITATIONS, design_excitation
-from harness.run import CONF_DIR
+from harness.setup import CONF_DIR, limits_from_config
 from identify.derivatives import derive_states
 from identify.estimators import estimate
 from identify.problem import build_problem
@@ -38,23 +38,12 @@ POSITION_SYSTEMS = [
 ]
 
 
-def _plain(value: object) -> float | list[float]:
-    return list(value) if OmegaConf.is_list(value) else float(value)  # type: ignore[call-overload, arg-type]
-
-
 @cache
 def _setup(system: str, effects: tuple[str, ...] | None = None) -> tuple[Plant, Limits, ParameterModel, BaseParameters]:
     """Plant, limits, model and base parameters as `sysid-run` builds them from the system's config."""
     cfg = OmegaConf.load(CONF_DIR / "system" / f"{system}.yaml")
     plant = load_plant(cfg.mjcf)
-    lim = cfg.limits
-    limits = limits_for(
-        plant,
-        velocity=_plain(lim.velocity),
-        acceleration=_plain(lim.acceleration),
-        range_margin=float(lim.range_margin),
-        torque_margin=float(lim.torque_margin),
-    )
+    limits = limits_from_config(cfg, plant)
     model = ParameterModel(plant, tuple(cfg.effects) if effects is None else effects)
     return plant, limits, model, base_parameters(model, np.random.default_rng(0))
 

@@ -9,7 +9,7 @@ import pytest
 
 from envs.dataset import Dataset
 from envs.sensors import SensorModel
-from harness.run import design_from_config, experiment_from_config, simulate_design
+from harness.setup import design_from_config, experiment_from_config, simulate_design
 from identify.derivatives import derive_states
 from identify.estimators import estimate
 from identify.problem import build_problem

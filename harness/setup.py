@@ -1,0 +1,122 @@
+"""One place that turns a config into objects: sensors, limits, the experiment, designs and their simulation.
+
+`sysid-run`, `sysid-diagnose`, the benchmarks and the tests build what a config describes through these
+functions instead of rebuilding it by hand.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from dynamics.base import BaseParameters, base_parameters
+from dynamics.plant import Plant, load_plant
+from dynamics.regressor import ParameterModel
+from envs.dataset import Dataset
+from envs.sensors import SensorModel
+from envs.simulate import simulate_open_loop, simulate_tracking
+from excitation.fourier import FourierDesign
+from excitation.limits import Limits, limits_for
+from excitation.registry import design_excitation
+from harness.progress import Progress
+
+__all__ = [
+    "CONF_DIR",
+    "Experiment",
+    "design_from_config",
+    "experiment_from_config",
+    "limits_from_config",
+    "sensor_from_config",
+    "simulate_design",
+]
+
+# absolute, so that the entry points find the configs wherever they are called from
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def _plain(value: Any) -> float | list[float]:
+    """A config scalar or list as plain Python floats."""
+    return [float(v) for v in value] if OmegaConf.is_list(value) else float(value)
+
+
+def limits_from_config(system: DictConfig, plant: Plant) -> Limits:
+    """The limits of a system config (its `limits` node) for `plant`."""
+    lim = system.limits
+    return limits_for(
+        plant,
+        velocity=_plain(lim.velocity),
+        acceleration=_plain(lim.acceleration),
+        range_margin=float(lim.range_margin),
+        torque_margin=float(lim.torque_margin),
+    )
+
+
+def sensor_from_config(cfg: DictConfig, plant: Plant) -> SensorModel:
+    """The sensor model of a system config scaled by the noise config."""
+    sigma_tau = np.broadcast_to(np.asarray(cfg.system.sensor.sigma_tau, dtype=float), (plant.nv,))
+    return SensorModel(
+        sample_rate_hz=float(cfg.system.sensor.sample_rate_hz),
+        sigma_q=float(cfg.noise.sigma_q),
+        q_resolution=float(cfg.noise.q_resolution),
+        sigma_tau=sigma_tau * float(cfg.noise.tau_scale),
+        tau_resolution=float(cfg.system.sensor.tau_resolution) * float(cfg.noise.tau_scale),
+    )
+
+
+def simulate_design(
+    plant: Plant, design: FourierDesign, cfg: DictConfig, sensor: SensorModel, rng: np.random.Generator, periods: float
+) -> Dataset:
+    """Simulate `periods` periods of a design: tracked (position design) or applied open loop (torque design)."""
+    duration = periods * design.period_s
+    if cfg.system.torque_driven:
+        return simulate_open_loop(plant, design.torque, duration_s=duration, sensor=sensor, rng=rng)
+    return simulate_tracking(
+        plant,
+        design,
+        duration_s=duration,
+        sensor=sensor,
+        rng=rng,
+        bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
+    )
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """What a system config sets up: the plant, its limits, the parameters to identify and the sensors."""
+
+    plant: Plant
+    limits: Limits
+    model: ParameterModel
+    base: BaseParameters
+    sensor: SensorModel
+
+
+def experiment_from_config(cfg: DictConfig, rng: np.random.Generator) -> Experiment:
+    """The plant, limits, parameter model (with its base parameters, found with `rng`) and sensor of `cfg`."""
+    plant = load_plant(cfg.system.mjcf)
+    limits = limits_from_config(cfg.system, plant)
+    model = ParameterModel(plant, tuple(cfg.system.effects))
+    return Experiment(plant, limits, model, base_parameters(model, rng), sensor_from_config(cfg, plant))
+
+
+def design_from_config(
+    cfg: DictConfig, exp: Experiment, name: str, rng: np.random.Generator, *, progress: Progress | None = None
+) -> FourierDesign:
+    """The excitation `name` for the experiment; the config's options apply to the configured design only."""
+    options = OmegaConf.to_container(cfg.excitation.options, resolve=True) if name == cfg.excitation.name else {}
+    return design_excitation(
+        name,
+        exp.plant,
+        exp.limits,
+        model=exp.model,
+        harmonics=int(cfg.excitation.harmonics),
+        base_freq_hz=float(cfg.system.base_freq_hz),
+        torque_driven=bool(cfg.system.torque_driven),
+        rng=rng,
+        progress=progress,
+        **options,  # type: ignore[arg-type]
+    )
