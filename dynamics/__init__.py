@@ -23,11 +23,13 @@ from dynamics.inertia import (
     repair_body,
     transform_parameters,
 )
+from dynamics.mjcf import write_inertial
 from dynamics.plant import (
     INERTIAL_SYMBOLS,
     MJCF_DIR,
     SYSTEMS,
     Plant,
+    body_parameters,
     check_against_mujoco,
     load_plant,
     mjcf_path,
@@ -54,6 +56,7 @@ __all__ = [
     "SysIdError",
     "base_parameters",
     "body_from_log_cholesky",
+    "body_parameters",
     "check_against_mujoco",
     "from_mass_com_inertia",
     "independent_columns",
@@ -73,4 +76,5 @@ __all__ = [
     "rigid_body_regressor",
     "torque_jacobian_q",
     "transform_parameters",
+    "write_inertial",
 ]

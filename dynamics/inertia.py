@@ -137,12 +137,18 @@ def mass_com_inertia(theta: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 _MARGIN = 1e-7
 
 
+def _margin(w: np.ndarray) -> float:
+    """[kg m^2] the MJCF text keeps about six significant digits, and MuJoCo checks A + B >= C on them."""
+    return _MARGIN + 1e-5 * float(np.max(np.abs(w)))
+
+
 def is_consistent(theta: np.ndarray) -> bool:
+    """Positive mass, positive definite inertia about the centre of mass and the triangle inequality, with a
+    margin that survives the MJCF text's rounding."""
     if theta[0] <= 0:
         return False
     w = np.sort(np.linalg.eigvalsh(mass_com_inertia(theta)[2]))
-    # an absolute margin [kg m^2]: the MJCF text keeps about six digits, and MuJoCo checks A + B >= C on them
-    return bool(w[0] > _MARGIN and w[0] + w[1] - w[2] > _MARGIN)
+    return bool(w[0] > _margin(w) and w[0] + w[1] - w[2] > _margin(w))
 
 
 def repair_body(theta: np.ndarray, nominal: np.ndarray, free: np.ndarray, notes: list[str], body: str) -> np.ndarray:
@@ -172,11 +178,9 @@ def repair_body(theta: np.ndarray, nominal: np.ndarray, free: np.ndarray, notes:
             return raised
     m, c, inertia = mass_com_inertia(fixed)
     w, v = np.linalg.eigh(inertia)
-    w = np.maximum(w, 2 * _MARGIN)
-    for _ in range(100):  # triangle inequality of principal moments
-        gap = 2 * _MARGIN + w.max() - (w.sum() - w.max())
-        if gap <= 0:
-            break
+    w = np.maximum(w, 2 * _margin(w))
+    gap = 2 * _margin(w) + w.max() - (w.sum() - w.max())
+    if gap > 0:  # triangle inequality of principal moments: raising all three by gap closes it
         w = w + gap
     inertia = v @ np.diag(w) @ v.T
     notes.append(f"{body}: inertia about the centre of mass raised to be physically consistent (changes predictions)")

@@ -15,6 +15,7 @@ parent; each Pinocchio joint carries the inertia of every body it moves rigidly.
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,15 +23,18 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from dynamics.actuators import Actuation, actuation_of
 from dynamics.errors import ModelError
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
+from dynamics.urdf import URDF_SUFFIXES, urdf_as_mjcf_file
 
 __all__ = [
     "INERTIAL_SYMBOLS",
     "MJCF_DIR",
     "SYSTEMS",
     "Plant",
+    "body_parameters",
     "check_against_mujoco",
     "load_plant",
     "mjcf_path",
@@ -51,20 +55,22 @@ _CHECK_RTOL = 1e-7
 
 
 def mjcf_path(system: str) -> Path:
-    """Path of a built-in system's MJCF, or of a user's MJCF file given by path.
+    """Path of a built-in system's MJCF, or of a user's model file (MJCF `.xml` or `.urdf`) given by path.
 
     Raises:
         ValueError: unknown system name (the message lists the valid ones) or missing file.
     """
     candidate = Path(system)
-    if candidate.suffix == ".xml":
+    if candidate.suffix.lower() in (".xml", *URDF_SUFFIXES):
         if candidate.is_dir():
-            raise ValueError(f"MJCF path is a directory, not a file: {candidate}")
+            raise ValueError(f"model path is a directory, not a file: {candidate}")
         if not candidate.is_file():
-            raise ValueError(f"MJCF file not found: {candidate}")
+            raise ValueError(f"model file not found: {candidate}")
         return candidate
     if system not in SYSTEMS:
-        raise ValueError(f"unknown system {system!r}; valid choices: {', '.join(SYSTEMS)} (or a path to an .xml)")
+        raise ValueError(
+            f"unknown system {system!r}; valid choices: {', '.join(SYSTEMS)} (or a path to an .xml MJCF or a .urdf)"
+        )
     return MJCF_DIR / f"{system}.xml"
 
 
@@ -85,11 +91,14 @@ class Plant:
         actuated: (nv,) True where an actuator drives the joint.
         gear: (nv,) actuator transmission (joint torque = gear * actuator force); 0 where unactuated.
         q_range: (nv, 2) joint range [rad or m]; +-inf where the joint is unlimited.
-        tau_limit: (nv,) largest joint torque the actuator can apply [N m]; 0 where unactuated.
+        tau_limit: (nv,) largest joint torque the actuator can apply [N m] (from its force range; a motor's
+            ctrl range too); inf where nothing limits it, 0 where unactuated.
+        actuation: the actuators by kind (motors, servos), how they are driven and limited.
         theta: (10 nv,) true standard inertial parameters, 10 per joint in `INERTIAL_SYMBOLS` order,
             about the joint frame's origin [kg, kg m, kg m^2].
         armature, damping, frictionloss, stiffness, springref: (nv,) joint properties of the model
             [kg m^2, N m s/rad, N m, N m/rad, rad].
+        source: the file the user gave where it is not `path` itself (a URDF, compiled to the MJCF `path`).
     """
 
     name: str
@@ -104,12 +113,14 @@ class Plant:
     gear: np.ndarray
     q_range: np.ndarray
     tau_limit: np.ndarray
+    actuation: Actuation
     theta: np.ndarray
     armature: np.ndarray
     damping: np.ndarray
     frictionloss: np.ndarray
     stiffness: np.ndarray
     springref: np.ndarray
+    source: Path | None = None
 
     @property
     def nv(self) -> int:
@@ -122,19 +133,21 @@ class Plant:
 
 
 def load_plant(system: str | Path) -> Plant:
-    """Load a built-in system by name (see `SYSTEMS`) or any MJCF of hinge and slide joints by path.
+    """Load a built-in system by name (see `SYSTEMS`), or any MJCF or URDF of hinge and slide joints by path.
 
     Raises:
         ValueError: unknown system name or missing file.
         ModelError: MuJoCo cannot compile it, it has joints or couplings the harness does not support, or
             MuJoCo and Pinocchio disagree on its dynamics.
     """
-    path = mjcf_path(str(system))
+    source = mjcf_path(str(system))
+    path = urdf_as_mjcf_file(source) if source.suffix.lower() in URDF_SUFFIXES else source
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
-        raise ModelError(f"{path}: MuJoCo cannot load it: {err}") from err
-    return plant_from_model(path, mj_model)
+        raise ModelError(f"{source}: MuJoCo cannot load it: {err}") from err
+    plant = plant_from_model(path, mj_model)
+    return dataclasses.replace(plant, name=source.stem, source=source) if source != path else plant
 
 
 def plant_from_xml(xml: str, name: str, directory: Path) -> Plant:
@@ -171,11 +184,6 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         raise ModelError(f"{path}: gravity compensation (gravcomp) on bodies {bodies} is not supported")
     if m.opt.density != 0 or m.opt.viscosity != 0:
         raise ModelError(f"{path}: fluid forces (option density/viscosity) are not supported")
-    for a in range(m.nu):
-        if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
-            raise ModelError(
-                f"{path}: actuator {_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)} is not a joint transmission"
-            )
 
 
 def _se3(quat: np.ndarray, pos: np.ndarray) -> pin.SE3:
@@ -186,6 +194,12 @@ def _se3(quat: np.ndarray, pos: np.ndarray) -> pin.SE3:
 
 def _axis_rotation(axis: np.ndarray, angle: float) -> pin.SE3:
     return pin.SE3(pin.AngleAxis(angle, axis).matrix(), np.zeros(3))
+
+
+def body_parameters(m: mujoco.MjModel, b: int) -> np.ndarray:
+    """(10,) body b's standard parameters in its own frame, as MuJoCo compiled them."""
+    inertia = _body_inertia(m, b)
+    return from_mass_com_inertia(inertia.mass, inertia.lever, inertia.inertia)
 
 
 def _body_inertia(m: mujoco.MjModel, b: int) -> pin.Inertia:
@@ -218,7 +232,7 @@ def pinocchio_from_mujoco(m: mujoco.MjModel) -> tuple[pin.Model, np.ndarray, np.
             axis = np.asarray(m.jnt_axis[j], dtype=float)
             anchor = pin.SE3(np.eye(3), np.asarray(m.jnt_pos[j], dtype=float))
             ref = float(m.qpos0[m.jnt_qposadr[j]])
-            if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE:
+            if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE):
                 placement = current * anchor * _axis_rotation(axis, -ref)
                 model: object = pin.JointModelRevoluteUnaligned(*axis)
             else:
@@ -247,9 +261,7 @@ def own_body_parameters(plant: Plant) -> np.ndarray:
     m = plant.mj_model
     out = np.zeros(10 * plant.nv)
     for j in np.flatnonzero(plant.carries_body):
-        b = int(m.jnt_bodyid[m.dof_jntid[j]])
-        inertia = _body_inertia(m, b)
-        body = from_mass_com_inertia(inertia.mass, inertia.lever, inertia.inertia)
+        body = body_parameters(m, int(m.jnt_bodyid[m.dof_jntid[j]]))
         out[10 * j : 10 * j + 10] = transform_parameters(body, plant.joint_from_body[j])
     return out
 
@@ -288,20 +300,13 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
     """
     _check_scope(path, m)
     pm, carries, joint_from_body = pinocchio_from_mujoco(m)
-    nv = m.nv
     names = tuple(_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt))
-    gear = np.zeros(nv)
-    tau_limit = np.zeros(nv)
-    for a in range(m.nu):
-        j = int(m.jnt_dofadr[m.actuator_trnid[a, 0]])
-        gear[j] += m.actuator_gear[a, 0]
-        limit = np.inf
-        if m.actuator_ctrllimited[a]:
-            limit = float(np.max(np.abs(m.actuator_ctrlrange[a]))) * abs(m.actuator_gear[a, 0])
-        if m.actuator_forcelimited[a]:
-            limit = min(limit, float(np.max(np.abs(m.actuator_forcerange[a]))) * abs(m.actuator_gear[a, 0]))
-        tau_limit[j] += limit
+    actuation = actuation_of(m, str(path))
+    gear = actuation.gear()
     q_range = np.where(m.jnt_limited[:, None].astype(bool), m.jnt_range, [-np.inf, np.inf])
+    # a disabled spring or damper (an <option><flag>) is absent from MuJoCo's dynamics, so from ours too
+    spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
+    damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
     theta = np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])
     plant = Plant(
         name=path.stem,
@@ -315,12 +320,13 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
         actuated=gear != 0,
         gear=gear,
         q_range=np.asarray(q_range, dtype=float),
-        tau_limit=tau_limit,
+        tau_limit=actuation.torque_limit(),
+        actuation=actuation,
         theta=theta,
         armature=m.dof_armature.copy(),
-        damping=m.dof_damping.copy(),
+        damping=m.dof_damping * float(damper_on),
         frictionloss=m.dof_frictionloss.copy(),
-        stiffness=m.jnt_stiffness.copy(),
+        stiffness=m.jnt_stiffness * float(spring_on),
         springref=m.qpos_spring.copy(),
     )
     if check:

@@ -6,6 +6,7 @@ Effect columns (per joint j, only on the joint's own row):
     armature          Ia_j   ddq_j            (MJCF `armature`, kg m^2)
     viscous_friction  Fv_j   dq_j             (MJCF `damping`, N m s/rad)
     coulomb_friction  Fc_j   sign(dq_j)       (MJCF `frictionloss`, N m)
+    joint_stiffness   K_j    q_j - springref_j (MJCF `stiffness`, N m/rad; about the model's spring rest angle)
     torque_offset     off_j  1                (sensor bias, N m; actuated joints only)
 """
 
@@ -25,6 +26,7 @@ EFFECT_COLUMNS: dict[str, tuple[str, bool]] = {
     "armature": ("Ia", False),
     "viscous_friction": ("Fv", False),
     "coulomb_friction": ("Fc", False),
+    "joint_stiffness": ("K", False),
     "torque_offset": ("off", True),
 }
 
@@ -84,7 +86,12 @@ class ParameterModel:
     def truth(self) -> np.ndarray:
         """(p,) the MJCF's values of every parameter (a sensor offset is 0 in the model)."""
         p = self.plant
-        values = {"armature": p.armature, "viscous_friction": p.damping, "coulomb_friction": p.frictionloss}
+        values = {
+            "armature": p.armature,
+            "viscous_friction": p.damping,
+            "coulomb_friction": p.frictionloss,
+            "joint_stiffness": p.stiffness,
+        }
         parts = [p.theta]
         for e in self.effects:
             joints = self._effect_joints(e)
@@ -94,7 +101,13 @@ class ParameterModel:
     def regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """(N, nv, p) regressor: rigid-body block then one column per effect and joint."""
         blocks = [rigid_body_regressor(self.plant, q, dq, ddq)]
-        signal = {"armature": ddq, "viscous_friction": dq, "coulomb_friction": np.sign(dq), "torque_offset": None}
+        signal = {
+            "armature": ddq,
+            "viscous_friction": dq,
+            "coulomb_friction": np.sign(dq),
+            "joint_stiffness": q - self.plant.springref,
+            "torque_offset": None,
+        }
         for e in self.effects:
             joints = self._effect_joints(e)
             cols = np.zeros((len(q), self.plant.nv, len(joints)))

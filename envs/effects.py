@@ -26,9 +26,10 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import pinocchio as pin
 
-from dynamics.plant import Plant, plant_from_xml
+from dynamics.inertia import from_mass_com_inertia
+from dynamics.mjcf import write_inertial
+from dynamics.plant import Plant, body_parameters, plant_from_xml
 from envs.sensors import SensorModel
 
 __all__ = ["HIDDEN_EFFECTS", "MJCF_EFFECTS", "SENSOR_EFFECTS", "HiddenEffect", "apply_effects"]
@@ -112,10 +113,13 @@ def _joint_index(plant: Plant, name: str) -> int:
 
 def _apply_mjcf(spec: mujoco.MjSpec, plant: Plant, e: HiddenEffect) -> None:
     if e.effect == "payload":
-        body = spec.body(e.target)
-        if body is None or e.target not in plant.body_names:
+        if spec.body(e.target) is None or e.target not in plant.body_names:
             raise ValueError(f"unknown body {e.target!r}; valid choices: {', '.join(plant.body_names)}")
-        _add_point_mass(body, e.value, np.asarray(e.position, dtype=float))
+        # the body as compiled (its inertia may come from geoms) plus a point mass at `position`
+        m = plant.mj_model
+        own = body_parameters(m, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, e.target))
+        point = from_mass_com_inertia(e.value, np.asarray(e.position, dtype=float), np.zeros((3, 3)))
+        write_inertial(spec, e.target, own + point)
         return
     _joint_index(plant, e.target)
     joint = spec.joint(e.target)
@@ -132,31 +136,6 @@ def _apply_mjcf(spec: mujoco.MjSpec, plant: Plant, e: HiddenEffect) -> None:
         stiffness[0] += e.value
         joint.stiffness = stiffness
         joint.springref = e.springref
-
-
-def _add_point_mass(body: mujoco.MjsBody, mass: float, position: np.ndarray) -> None:
-    """Combine the body's inertial with a point mass, and write it back as mass, ipos and fullinertia."""
-    rotation = _quat_to_matrix(np.asarray(body.iquat, dtype=float))
-    if np.all(np.isfinite(body.fullinertia)) and np.any(np.asarray(body.fullinertia) != 0):
-        xx, yy, zz, xy, xz, yz = body.fullinertia
-        inertia = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-    else:
-        inertia = rotation @ np.diag(body.inertia) @ rotation.T
-    combined = pin.Inertia(float(body.mass), np.asarray(body.ipos, dtype=float), inertia) + pin.Inertia(
-        mass, position, np.zeros((3, 3))
-    )
-    full = combined.inertia
-    body.mass = float(combined.mass)
-    body.ipos = np.asarray(combined.lever, dtype=float)
-    body.iquat = np.array([1.0, 0.0, 0.0, 0.0])
-    body.fullinertia = np.array([full[0, 0], full[1, 1], full[2, 2], full[0, 1], full[0, 2], full[1, 2]])
-    body.explicitinertial = True
-
-
-def _quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    out = np.zeros(9)
-    mujoco.mju_quat2Mat(out, quat / np.linalg.norm(quat))
-    return out.reshape(3, 3)
 
 
 def _apply_sensor(plant: Plant, sensor: SensorModel, effects: list[HiddenEffect]) -> SensorModel:

@@ -40,7 +40,10 @@ def simulate_tracking(
     bandwidth_hz: float = 4.0,
     damping_ratio: float = 1.0,
 ) -> Dataset:
-    """Track `reference` with PD feedback plus feedforward from the nominal model's inverse dynamics.
+    """Track `reference` through the plant's actuators.
+
+    A torque actuator (motor, general) gets PD feedback plus feedforward from the nominal model's inverse
+    dynamics; a servo (position, velocity) gets the reference as its target and tracks with its own gains.
 
     Args:
         plant: the simulated system (it may hide effects the nominal model lacks).
@@ -66,8 +69,11 @@ def simulate_tracking(
     omega = 2 * np.pi * bandwidth_hz
     kp, kd = m_diag * omega**2, 2 * damping_ratio * omega * m_diag
 
+    actuation = plant.actuation
+
     def control(k: int, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        return tau_ff[k] + kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq)
+        tau = tau_ff[k] + kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq)
+        return actuation.ctrl_for_reference(tau, q, dq, q_ref[k], dq_ref[k])
 
     return _run(plant, t, control, q0=q_ref[0], dq0=dq_ref[0], sensor=sensor, rng=rng)
 
@@ -89,7 +95,10 @@ def simulate_open_loop(
         raise ValueError(f"torque(t) returned shape {tau.shape}, expected ({len(t)}, {plant.nv})")
     q0 = np.zeros(plant.nv) if q0 is None else q0
     dq0 = np.zeros(plant.nv) if dq0 is None else dq0
-    return _run(plant, t, lambda k, q, dq: tau[k], q0=q0, dq0=dq0, sensor=sensor, rng=rng)
+    actuation = plant.actuation
+    return _run(
+        plant, t, lambda k, q, dq: actuation.ctrl_for_torque(tau[k], q, dq), q0=q0, dq0=dq0, sensor=sensor, rng=rng
+    )
 
 
 def _sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
@@ -105,6 +114,28 @@ def _mass_diagonal(plant: Plant, q: np.ndarray) -> np.ndarray:
     full = np.zeros((m.nv, m.nv))
     mujoco.mj_fullM(m, d, full)
     return np.diag(full).copy()
+
+
+def _implicit_damping(plant: Plant) -> np.ndarray | None:
+    """(nv,) c such that reported torque = qfrc_actuator + c (v_next - v) undoes the integrator's implicit damping.
+
+    MuJoCo's implicit integrators (and Euler, for joint damping) evaluate velocity-proportional forces at the
+    end of the step: the motion satisfies M a + d v_next = tau(v_next), not M a + d v = tau(v), which looks
+    like an extra inertia h (d + kv) (0.9 kg m^2 for a servo of kv 450 at h = 2 ms, nine times a typical
+    armature). Reporting the torque as qfrc_actuator + (b2 gear^2 - d)(v_next - v) with the step's acceleration
+    (v_next - v) / h gives data of the continuous-time robot. None where nothing is implicit.
+    """
+    m = plant.mj_model
+    integrator = int(m.opt.integrator)
+    implicit_kinds = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+    eulerdamp = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    out = np.zeros(plant.nv)
+    if integrator in implicit_kinds or (integrator == int(mujoco.mjtIntegrator.mjINT_EULER) and eulerdamp):
+        out -= plant.damping
+    if integrator in implicit_kinds:
+        for a in plant.actuation.actuators:
+            out[a.joint] += a.bias[2] * a.gear**2
+    return out if np.any(out) else None
 
 
 def _run(
@@ -126,18 +157,22 @@ def _run(
             f"{plant.name}: sample interval {dt_sample} s is not a whole multiple of the physics timestep "
             f"{m.opt.timestep} s"
         )
-    act_joint = np.array([int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)], dtype=int)
-    gear = m.actuator_gear[:, 0]
     n, nv = len(t), m.nv
     q, dq, ddq, applied, cmd = (np.empty((n, nv)) for _ in range(5))
+    implicit = _implicit_damping(plant)
     d.qpos[:], d.qvel[:] = q0, dq0
     for k in range(n):
-        tau_cmd = control(k, d.qpos.copy(), d.qvel.copy())
-        d.ctrl[:] = tau_cmd[act_joint] / gear
+        state = d.qpos.copy(), d.qvel.copy()
+        d.ctrl[:] = control(k, *state)
         mujoco.mj_forward(m, d)
         q[k], dq[k], ddq[k] = d.qpos, d.qvel, d.qacc
-        applied[k], cmd[k] = d.qfrc_actuator, np.where(plant.actuated, tau_cmd, 0.0)
-        for _ in range(substeps):
+        applied[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
+        mujoco.mj_step(m, d)
+        if implicit is not None:  # the step's own acceleration, and the torque that produced it
+            step = d.qvel - state[1]
+            ddq[k] = step / m.opt.timestep
+            applied[k] = applied[k] + implicit * step
+        for _ in range(substeps - 1):
             mujoco.mj_step(m, d)
         if not np.all(np.isfinite(d.qpos)):
             raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")

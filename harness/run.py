@@ -16,7 +16,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import BaseParameters
-from dynamics.plant import Plant
+from dynamics.plant import Plant, load_plant
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
 from envs.dataset import Dataset, write_csv
@@ -27,7 +27,14 @@ from excitation.limits import Limits
 from excitation.registry import EXCITATIONS
 from harness.progress import printer
 from harness.results import run_job, summary_table, write_json
-from harness.setup import CONF_DIR, design_from_config, experiment_from_config, simulate_design
+from harness.setup import (
+    CONF_DIR,
+    design_from_config,
+    experiment_from_config,
+    simulate_design,
+    system_for_overrides,
+    with_model_defaults,
+)
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
 from identify.derivatives import DERIVATIVES, derive_states
 from identify.derived import DERIVED
@@ -98,7 +105,9 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
     timing: dict[str, float] = {}
     rng_design, rng_noise, rng_base, rng_val = np.random.default_rng(int(cfg.seed)).spawn(4)
     with _timed(timing, "setup"):
-        exp = experiment_from_config(cfg, rng_base)
+        loaded = load_plant(cfg.system.mjcf)
+        cfg = with_model_defaults(cfg, loaded)
+        exp = experiment_from_config(cfg, rng_base, plant=loaded)
         plant, limits, model, base, sensor = exp.plant, exp.limits, exp.model, exp.base, exp.sensor
     with _timed(timing, "excitation"):
         design = design_from_config(cfg, exp, cfg.excitation.name, rng_design, progress=printer("excitation"))
@@ -212,7 +221,9 @@ def _hydra_output_dir() -> Path:
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
 def main(cfg: DictConfig) -> None:
     """Console entry point `sysid-run`."""
-    run_job(run, cfg)
+    from hydra.core.hydra_config import HydraConfig
+
+    run_job(run, system_for_overrides(cfg, list(HydraConfig.get().overrides.task)))
 
 
 if __name__ == "__main__":

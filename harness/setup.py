@@ -6,15 +6,16 @@ functions instead of rebuilding it by hand.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dynamics.base import BaseParameters, base_parameters
-from dynamics.plant import Plant, load_plant
+from dynamics.plant import SYSTEMS, Plant, load_plant
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
 from envs.sensors import SensorModel
@@ -22,6 +23,7 @@ from envs.simulate import simulate_open_loop, simulate_tracking
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits, limits_for
 from excitation.registry import design_excitation
+from harness.defaults import resolve_system
 from harness.progress import Progress
 
 __all__ = [
@@ -32,6 +34,8 @@ __all__ = [
     "limits_from_config",
     "sensor_from_config",
     "simulate_design",
+    "system_for_overrides",
+    "with_model_defaults",
 ]
 
 # absolute, so that the entry points find the configs wherever they are called from
@@ -41,6 +45,40 @@ CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 def _plain(value: Any) -> float | list[float]:
     """A config scalar or list as plain Python floats."""
     return [float(v) for v in value] if OmegaConf.is_list(value) else float(value)
+
+
+def system_for_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
+    """The config with the right system node for the command line's overrides.
+
+    `system.mjcf=<path>` without a `system=` choice names a robot with no system config of its own: its
+    system node becomes `conf/system/auto.yaml` (every null taken from the model, see `harness.defaults`),
+    with the command line's other `system.*` overrides applied. Any other command line keeps `cfg`.
+    """
+    keys = [o.split("=", 1)[0].lstrip("+~") for o in overrides]
+    if "system.mjcf" not in keys or "system" in keys or str(cfg.system.mjcf) in SYSTEMS:
+        return cfg
+    auto = OmegaConf.load(CONF_DIR / "system" / "auto.yaml")
+    for key in keys:
+        if key.startswith("system."):
+            OmegaConf.update(auto, key.removeprefix("system."), OmegaConf.select(cfg, key), force_add=True)
+    out = cfg.copy()
+    with open_dict(out):
+        out.system = auto
+    return out
+
+
+def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:
+    """`cfg` with every null of its system node filled from the model; prints what it assumed."""
+    system, assumed = resolve_system(cfg.system, plant)
+    if not assumed:
+        return cfg
+    print(f"system settings taken from the model {plant.source or plant.path} (set any to override it):")
+    for key, value in assumed.items():
+        print(f"  system.{key}={value}")
+    out = cfg.copy()
+    with open_dict(out):
+        out.system = system
+    return out
 
 
 def limits_from_config(system: DictConfig, plant: Plant) -> Limits:
@@ -95,9 +133,9 @@ class Experiment:
     sensor: SensorModel
 
 
-def experiment_from_config(cfg: DictConfig, rng: np.random.Generator) -> Experiment:
+def experiment_from_config(cfg: DictConfig, rng: np.random.Generator, *, plant: Plant | None = None) -> Experiment:
     """The plant, limits, parameter model (with its base parameters, found with `rng`) and sensor of `cfg`."""
-    plant = load_plant(cfg.system.mjcf)
+    plant = plant or load_plant(cfg.system.mjcf)
     limits = limits_from_config(cfg.system, plant)
     model = ParameterModel(plant, tuple(cfg.system.effects))
     return Experiment(plant, limits, model, base_parameters(model, rng), sensor_from_config(cfg, plant))

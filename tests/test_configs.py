@@ -21,7 +21,7 @@ def _options(group: str) -> list[str]:
     return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
 
 
-@pytest.mark.parametrize("system", _options("system"))
+@pytest.mark.parametrize("system", [s for s in _options("system") if s != "auto"])
 def test_every_system_config_composes_and_loads(system: str) -> None:
     cfg = compose_config([f"system={system}"])
     plant = load_plant(cfg.system.mjcf)

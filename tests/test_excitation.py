@@ -34,7 +34,7 @@ from identify.problem import build_problem
 POSITION_SYSTEMS = [
     name
     for name in sorted(p.stem for p in (CONF_DIR / "system").glob("*.yaml"))
-    if not OmegaConf.load(CONF_DIR / "system" / f"{name}.yaml").torque_driven
+    if name != "auto" and not OmegaConf.load(CONF_DIR / "system" / f"{name}.yaml").torque_driven
 ]
 
 

@@ -31,13 +31,13 @@ import numpy as np
 from scipy import optimize
 
 from dynamics.inertia import (
-    body_from_log_cholesky,
+    body_and_jacobian,
     is_consistent,
     log_cholesky_from_body,
-    mass_com_inertia,
     repair_body,
     transform_parameters,
 )
+from dynamics.mjcf import write_inertial
 from dynamics.plant import Plant, own_body_parameters
 from dynamics.regressor import rigid_body_regressor
 from dynamics.sampling import random_states
@@ -221,20 +221,35 @@ def consistent_parameters(
         ]
     )
 
-    def params(x: np.ndarray) -> np.ndarray:
-        return np.concatenate([body_from_log_cholesky(x[10 * b : 10 * b + 10]) for b in range(nv)])
+    def params_and_jacobian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        th, jac = np.empty(10 * nv), np.zeros((10 * nv, 10 * nv))
+        for b in range(nv):
+            cut = slice(10 * b, 10 * b + 10)
+            th[cut], jac[cut, cut] = body_and_jacobian(x[cut])
+        return th, jac
 
     def residual(x: np.ndarray) -> np.ndarray:
-        th = params(x)
+        th = params_and_jacobian(x)[0]
         return np.concatenate([metric @ (th - theta), mu * (th - anchor)])
 
-    fixed = params(optimize.least_squares(residual, x0, method="trf", max_nfev=2000).x)
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        jac = params_and_jacobian(x)[1]
+        return np.vstack([metric @ jac, mu * jac])
+
+    fit = optimize.least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=2000)
+    fixed = params_and_jacobian(fit.x)[0]
     change = float(np.linalg.norm(metric @ (fixed - theta)) / max(float(np.linalg.norm(metric @ theta)), 1e-300))
     notes.append(
         "the fitted inertials had no physical realisation; the nearest consistent ones are written "
         f"(relative change of the predicted training torques {change:.2%})"
     )
     return fixed
+
+
+def _generic_metric(plant: Plant, n: int = 200) -> np.ndarray:
+    """(10 nv, 10 nv) R of the rigid-body regressor stacked over random states: ||R d|| is the torque change."""
+    W = rigid_body_regressor(plant, *random_states(plant, np.random.default_rng(0), n)).reshape(n * plant.nv, -1)
+    return np.linalg.qr(W, mode="r") / np.sqrt(n)  # type: ignore[no-any-return]
 
 
 def _unobservable(plant: Plant) -> np.ndarray:
@@ -245,25 +260,9 @@ def _unobservable(plant: Plant) -> np.ndarray:
     return norms <= 1e-9 * max(float(norms.max()), 1e-300)
 
 
-def _write_inertial(spec: mujoco.MjSpec, plant: Plant, j: int, params: np.ndarray) -> None:
-    """Set joint j's body inertial to `params` (10,) given in the joint's frame, as mass, centre, principal
-    moments and axes (MuJoCo's own form), replacing whichever form the file used."""
-    m, c, inertia = mass_com_inertia(transform_parameters(params, np.linalg.inv(plant.joint_from_body[j])))
-    moments, axes = np.linalg.eigh(inertia)
-    if np.linalg.det(axes) < 0:
-        axes[:, 0] = -axes[:, 0]
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, axes.reshape(-1))
-    body = spec.body(plant.body_names[j])
-    body.mass, body.ipos, body.iquat, body.inertia = m, c, quat, moments
-    body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])  # MjSpec's "not given"
-    body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
-    body.explicitinertial = True
-
-
 def _angle_unit(spec: mujoco.MjSpec, plant: Plant, j: int) -> float:
     """Radians per unit of joint j's angles in the MJCF text (degrees where the compiler says so)."""
-    hinge = plant.mj_model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+    hinge = int(plant.mj_model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
     return float(np.pi / 180.0) if hinge and spec.compiler.degree else 1.0
 
 
@@ -274,8 +273,8 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         plant: the nominal model.
         ext: the corrections.
         metric: (k, 10 nv) training-torque metric used to make corrected inertials physically consistent
-            with the least change of the predicted torques (see `consistent_parameters`); None repairs body by
-            body.
+            with the least change of the predicted torques (see `consistent_parameters`); None uses the torques
+            at random states (the least change of the model's predictions anywhere).
         comment: a line for the file's header comment.
     """
     spec = mujoco.MjSpec.from_file(str(plant.path))
@@ -302,8 +301,9 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
     own = own_body_parameters(plant)
     corrected = own + ext.theta_delta
     if np.any(ext.theta_delta):
-        if metric is not None:
-            corrected = consistent_parameters(plant, corrected, metric, ext.notes, nominal=own)
+        if metric is None:
+            metric = _generic_metric(plant)
+        corrected = consistent_parameters(plant, corrected, metric, ext.notes, nominal=own)
         free = _unobservable(plant)
         corrected = np.concatenate(
             [
@@ -320,7 +320,8 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         if not np.any(delta):
             continue
         if plant.carries_body[j]:
-            _write_inertial(spec, plant, j, corrected[10 * j : 10 * j + 10])
+            body = transform_parameters(corrected[10 * j : 10 * j + 10], np.linalg.inv(plant.joint_from_body[j]))
+            write_inertial(spec, plant.body_names[j], body)
         else:
             ext.notes.append(
                 f"{plant.joint_names[j]}: an inertial change on a joint that carries no body of its own cannot be "

@@ -1,0 +1,174 @@
+"""The actuators of a compiled model, by kind, and how each is driven and limited.
+
+MuJoCo's actuator with a joint transmission applies the joint torque gear * force, with
+
+    force = gain * ctrl + b0 + b1 * length + b2 * velocity,   length = gear * q,  velocity = gear * dq
+
+clamped to `forcerange` (and the joint's `actuatorfrcrange`). The kinds the harness tells apart:
+
+    motor     fixed gain, no bias                      ctrl is a torque command: ctrl = tau / (gear gain)
+    position  fixed gain, affine bias with b1 < 0       a servo to an angle: ctrl = the target (gear q_ref)
+    velocity  fixed gain, affine bias, b1 = 0, b2 < 0   a servo to a speed: ctrl = the target (gear dq_ref)
+    general   fixed gain, any other affine bias         driven by inverting the affine law for a torque
+
+A servo arm is driven through its own servos (its gains and force limits as the model has them); the
+identified torque is what the actuators apply (`qfrc_actuator`). Actuator dynamics (`dyntype`) and
+non-fixed gains are refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from dynamics.errors import ModelError
+
+__all__ = ["ACTUATOR_KINDS", "Actuation", "Actuator", "actuation_of"]
+
+ACTUATOR_KINDS = ("general", "motor", "position", "velocity")
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """One actuator on one joint.
+
+    Attributes:
+        name: the actuator's name.
+        joint: its joint's dof index.
+        kind: one of `ACTUATOR_KINDS`.
+        gear: transmission (joint torque = gear * force).
+        gain: fixed gain (force per unit ctrl).
+        bias: (3,) affine bias b0, b1, b2 (force, per length, per velocity).
+        ctrl_range: (2,) ctrl limits, or None where unlimited.
+        torque_limit: largest |joint torque| it can apply [N m]: force range (and, for a motor, ctrl range)
+            times gear, the joint's `actuatorfrcrange` where tighter; inf where nothing limits it.
+    """
+
+    name: str
+    joint: int
+    kind: str
+    gear: float
+    gain: float
+    bias: np.ndarray
+    ctrl_range: np.ndarray | None
+    torque_limit: float
+
+    @property
+    def is_servo(self) -> bool:
+        return self.kind in ("position", "velocity")
+
+
+def _kind(gain: float, bias_type: int, bias: np.ndarray) -> str:
+    if bias_type == int(mujoco.mjtBias.mjBIAS_NONE) or not np.any(bias[:3]):
+        return "motor"
+    if bias[1] < 0 and np.isclose(-bias[1], gain, rtol=1e-9) and bias[0] == 0:
+        return "position"
+    if bias[1] == 0 and bias[2] < 0 and np.isclose(-bias[2], gain, rtol=1e-9) and bias[0] == 0:
+        return "velocity"
+    return "general"
+
+
+def _actuator(m: mujoco.MjModel, a: int, where: str) -> Actuator:
+    name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
+    if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+        raise ModelError(f"{where}: actuator {name!r} is not a joint transmission; only joint actuators are supported")
+    if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
+        raise ModelError(
+            f"{where}: actuator {name!r} has activation dynamics (dyntype); only direct actuators are supported"
+        )
+    if int(m.actuator_gaintype[a]) != int(mujoco.mjtGain.mjGAIN_FIXED):
+        raise ModelError(f"{where}: actuator {name!r} has a non-fixed gain (gaintype); only fixed gains are supported")
+    if int(m.actuator_biastype[a]) not in (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)):
+        raise ModelError(
+            f"{where}: actuator {name!r} has a non-affine bias (biastype); only affine biases are supported"
+        )
+    jid = int(m.actuator_trnid[a, 0])
+    gear, gain = float(m.actuator_gear[a, 0]), float(m.actuator_gainprm[a, 0])
+    bias = np.asarray(m.actuator_biasprm[a, :3], dtype=float).copy()
+    kind = _kind(gain, int(m.actuator_biastype[a]), bias)
+    limit = np.inf
+    if m.actuator_forcelimited[a]:
+        limit = float(np.max(np.abs(m.actuator_forcerange[a]))) * abs(gear)
+    ctrl_range = np.asarray(m.actuator_ctrlrange[a], dtype=float).copy() if m.actuator_ctrllimited[a] else None
+    if kind == "motor" and ctrl_range is not None:
+        limit = min(limit, float(np.max(np.abs(ctrl_range))) * abs(gain * gear))
+    if m.jnt_actfrclimited[jid]:
+        limit = min(limit, float(np.max(np.abs(m.jnt_actfrcrange[jid]))))
+    return Actuator(name, int(m.jnt_dofadr[jid]), kind, gear, gain, bias, ctrl_range, limit)
+
+
+@dataclass(frozen=True)
+class Actuation:
+    """All actuators of a model: at most one per joint."""
+
+    actuators: tuple[Actuator, ...]
+    nv: int
+
+    @property
+    def joints(self) -> np.ndarray:
+        return np.array([a.joint for a in self.actuators], dtype=int)
+
+    @property
+    def servo(self) -> bool:
+        """True when every actuator is a servo (the arm is driven by targets, not torques)."""
+        return bool(self.actuators) and all(a.is_servo for a in self.actuators)
+
+    def torque_limit(self) -> np.ndarray:
+        """(nv,) largest joint torque the actuators can apply [N m]; 0 where unactuated."""
+        out = np.zeros(self.nv)
+        for a in self.actuators:
+            out[a.joint] = a.torque_limit
+        return out
+
+    def gear(self) -> np.ndarray:
+        """(nv,) each joint's actuator gear; 0 where unactuated."""
+        out = np.zeros(self.nv)
+        for a in self.actuators:
+            out[a.joint] = a.gear
+        return out
+
+    def ctrl_for_torque(self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """(nu,) ctrl that makes each actuator apply the joint torque tau (nv,) at the state q, dq (nv,)."""
+        out = np.empty(len(self.actuators))
+        for i, a in enumerate(self.actuators):
+            j = a.joint
+            bias = a.bias[0] + a.bias[1] * a.gear * q[j] + a.bias[2] * a.gear * dq[j]
+            out[i] = (tau[j] / a.gear - bias) / a.gain
+        return out
+
+    def ctrl_for_reference(
+        self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray, q_ref: np.ndarray, dq_ref: np.ndarray
+    ) -> np.ndarray:
+        """(nu,) ctrl along a reference: a servo gets its target (an angle for a position servo, a speed for a
+        velocity servo, in actuator units: gear times the joint's), any other actuator the torque tau (nv,)."""
+        out = self.ctrl_for_torque(tau, q, dq)
+        for i, a in enumerate(self.actuators):
+            if a.is_servo:
+                out[i] = a.gear * (q_ref[a.joint] if a.kind == "position" else dq_ref[a.joint])
+        return out
+
+    def unclamped_torque(self, ctrl: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """(nv,) the joint torque the ctrl (nu,) asks for at q, dq (nv,), before any ctrl or force clamping."""
+        out = np.zeros(self.nv)
+        for i, a in enumerate(self.actuators):
+            j = a.joint
+            force = a.gain * ctrl[i] + a.bias[0] + a.bias[1] * a.gear * q[j] + a.bias[2] * a.gear * dq[j]
+            out[j] = a.gear * force
+        return out
+
+
+def actuation_of(m: mujoco.MjModel, where: str) -> Actuation:
+    """The actuators of a compiled model (`where` names it in errors).
+
+    Raises:
+        ModelError: an actuator the harness cannot drive, or two actuators on one joint.
+    """
+    acts = tuple(_actuator(m, a, where) for a in range(m.nu))
+    joints = [a.joint for a in acts]
+    if len(set(joints)) != len(joints):
+        twice = sorted({j for j in joints if joints.count(j) > 1})
+        names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[j])) for j in twice]
+        raise ModelError(f"{where}: several actuators drive joint(s) {names}; at most one per joint is supported")
+    return Actuation(acts, m.nv)

@@ -1,0 +1,37 @@
+"""Editing a model's MJCF through MjSpec: the one writer of body inertials (calibration, hidden payloads)."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from dynamics.inertia import is_consistent, mass_com_inertia
+
+__all__ = ["write_inertial"]
+
+
+def write_inertial(spec: mujoco.MjSpec, body_name: str, params: np.ndarray) -> None:
+    """Give body `body_name` the inertial `params` (10,), in the body's frame, whatever form the file used.
+
+    Written as mass, centre, principal moments and their axes (`diaginertia` + `quat`, MuJoCo's own form);
+    any `fullinertia` or alternative orientation of the original is cleared, and the body's inertial becomes
+    explicit (so geoms no longer decide it).
+
+    Raises:
+        ValueError: unknown body, or parameters that are not physically consistent (MuJoCo would refuse them).
+    """
+    body = spec.body(body_name)
+    if body is None:
+        raise ValueError(f"unknown body {body_name!r} in the MJCF")
+    if not is_consistent(params):
+        raise ValueError(f"body {body_name!r}: the inertial parameters are not physically consistent: {params}")
+    m, c, inertia = mass_com_inertia(params)
+    moments, axes = np.linalg.eigh(inertia)
+    if np.linalg.det(axes) < 0:
+        axes[:, 0] = -axes[:, 0]
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, axes.reshape(-1))
+    body.mass, body.ipos, body.iquat, body.inertia = m, c, quat, moments
+    body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])  # MjSpec's "not given"
+    body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    body.explicitinertial = True

@@ -1,0 +1,91 @@
+"""A URDF as an MJCF: MuJoCo's own URDF compiler reads it, and a motor is added on every joint.
+
+Mesh geometry is dropped first (its `package://` paths name files MuJoCo cannot resolve, and identification
+needs only the URDF's `<inertial>` elements); primitive geometry is kept. MuJoCo reads each joint's
+`<limit effort>` as its `actuatorfrcrange`; the motor added on it gets that range as its ctrl range, so the
+torque limit is the URDF's effort limit. Joint velocity limits, which MuJoCo ignores, are read here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from dynamics.errors import ModelError
+
+__all__ = ["URDF_SUFFIXES", "mjcf_from_urdf", "urdf_as_mjcf_file", "urdf_velocity_limits"]
+
+URDF_SUFFIXES = (".urdf",)
+
+
+def _stripped(path: Path) -> ET.Element:
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as err:
+        raise ModelError(f"{path}: not a readable URDF: {err}") from err
+    if root.tag != "robot":
+        raise ModelError(f"{path}: not a URDF (its root element is <{root.tag}>, not <robot>)")
+    for link in root.iter("link"):
+        for tag in ("visual", "collision"):
+            for element in list(link.findall(tag)):
+                if element.find("geometry/mesh") is not None:
+                    link.remove(element)
+    return root
+
+
+def mjcf_from_urdf(path: Path) -> str:
+    """MJCF text of a URDF, compiled by MuJoCo, with a motor on every joint (ctrl range = effort limit).
+
+    Raises:
+        ModelError: unreadable URDF, or one MuJoCo cannot compile.
+    """
+    root = _stripped(path)
+    try:
+        spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+        m = spec.compile()
+    except ValueError as err:
+        raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {err}") from err
+    for j in range(m.njnt):
+        if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            continue
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+        motor = spec.add_actuator()
+        motor.name = f"{name}_motor"
+        motor.target = name
+        motor.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        effort = float(np.max(np.abs(m.jnt_actfrcrange[j]))) if m.jnt_actfrclimited[j] else 0.0
+        if effort > 0:
+            motor.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            motor.ctrlrange = np.array([-effort, effort])
+    spec.compile()
+    header = f"<!-- Compiled by MuJoCo from {path.name} (meshes dropped; a motor per joint at its effort limit). -->\n"
+    return header + spec.to_xml()
+
+
+def urdf_velocity_limits(path: Path) -> dict[str, float]:
+    """Each joint's `<limit velocity>` [rad/s or m/s], where the URDF gives one (> 0)."""
+    out: dict[str, float] = {}
+    for joint in _stripped(path).iter("joint"):
+        limit = joint.find("limit")
+        if limit is not None and float(limit.get("velocity", "0")) > 0:
+            out[str(joint.get("name"))] = float(limit.get("velocity", "0"))
+    return out
+
+
+def urdf_as_mjcf_file(path: Path) -> Path:
+    """The URDF's MJCF written to a cache folder named by its content (the file `load_plant` then reads)."""
+    xml = mjcf_from_urdf(path)
+    digest = hashlib.sha256(xml.encode()).hexdigest()[:12]
+    folder = Path(tempfile.gettempdir()) / f"sysid_urdf_{digest}"
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / f"{path.stem}.xml"
+    if not out.is_file():
+        tmp = folder / f".{path.stem}.{digest}.tmp"
+        tmp.write_text(xml)
+        tmp.replace(out)
+    return out

@@ -1,0 +1,207 @@
+"""The plant is what MuJoCo compiles: every MJCF form arm models use gives regressor . theta == mj_inverse.
+
+Small fixtures, one per form: inertia from geoms, `<inertial quat diaginertia>`, `fullinertia`, an inertial
+`euler`, joints away from the body origin with tilted axes, several joints in one body (hinge and slide),
+default classes and `<include>`, bodies without joints (welded), angles in degrees with a joint `ref`.
+Every arm in `../shared/robots/` is checked the same way.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from dynamics.errors import ModelError
+from dynamics.plant import check_against_mujoco, load_plant, own_body_parameters
+from dynamics.regressor import ParameterModel
+from dynamics.sampling import random_states
+from dynamics.torque import inverse_dynamics, joint_torque
+
+ROBOTS = Path(__file__).resolve().parents[1].parent / "shared" / "robots"
+ROBOT_FILES = sorted(ROBOTS.glob("*.xml")) if ROBOTS.is_dir() else []
+
+_ARM = """<mujoco model="{name}">
+  <compiler angle="{angle}"/>
+  {head}
+  <worldbody>
+    <body name="link1" pos="0 0 0.5" {quat1}>
+      {joints1}
+      {inertial1}
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
+      <body name="link2" pos="0.3 0 0" euler="{euler2}">
+        {joints2}
+        {inertial2}
+        <geom type="capsule" fromto="0 0 0 0 0 -0.25" size="0.025"/>
+        <body name="tool" pos="0 0 -0.25">
+          <geom type="box" size="0.03 0.02 0.04" pos="0.01 0 -0.02"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+_FORMS: dict[str, dict[str, str]] = {
+    # MuJoCo's default: no <inertial>, masses and inertias from the geoms
+    "geom_inertia": {},
+    "diaginertia_quat": {
+        "inertial1": '<inertial pos="0.15 0.01 0" quat="0.9 0.1 0.3 0.2" mass="1.2" diaginertia="0.011 0.009 0.004"/>',
+        "inertial2": '<inertial pos="0 0.005 -0.12" quat="0.7 0 0.7 0.1" mass="0.8" diaginertia="0.006 0.005 0.002"/>',
+    },
+    "fullinertia_euler": {
+        "inertial1": '<inertial pos="0.15 0 0.01" mass="1.1" fullinertia="0.01 0.012 0.004 0.001 -0.0005 0.0002"/>',
+        "inertial2": '<inertial pos="0.01 0 -0.1" euler="0.3 0.2 0.1" mass="0.7" diaginertia="0.005 0.004 0.001"/>',
+    },
+    "offset_tilted_joints": {
+        "joints1": '<joint name="j1" type="hinge" pos="0.02 -0.01 0.03" axis="0.2 0.1 1"/>',
+        "joints2": '<joint name="j2" type="hinge" pos="0 0.01 0.05" axis="0 1 0.3" damping="0.05" armature="0.01"/>',
+    },
+    "several_joints_per_body": {
+        "joints1": '<joint name="j1" type="hinge" axis="0 0 1"/><joint name="j1b" type="hinge" pos="0.05 0 0" '
+        'axis="0 1 0"/>',
+        "joints2": '<joint name="j2" type="slide" axis="1 0 0.2" range="-0.1 0.1"/><joint name="j2b" type="hinge" '
+        'pos="0 0 -0.05" axis="1 0 0" stiffness="2" springref="0.2"/>',
+    },
+    "degrees_and_ref": {
+        "angle": "degree",
+        "euler2": "20 0 10",
+        "joints1": '<joint name="j1" type="hinge" axis="0 0 1" ref="30" range="-90 120"/>',
+        "joints2": '<joint name="j2" type="hinge" axis="0 1 0" ref="-15" range="-150 150" stiffness="1" '
+        'springref="10"/>',
+    },
+    "classes_and_include": {
+        "head": '<include file="defaults.xml"/>',
+        "joints1": '<joint name="j1" class="arm"/>',
+        "joints2": '<joint name="j2" class="arm" axis="1 0 0"/>',
+    },
+}
+
+_DEFAULTS = """<mujoco><default><default class="arm"><joint type="hinge" axis="0 1 0" damping="0.1"
+ armature="0.02"/><geom density="2700"/></default></default></mujoco>"""
+
+
+def _write_form(form: str, tmp_path: Path) -> Path:
+    fields = {
+        "name": form,
+        "angle": "radian",
+        "head": "",
+        "quat1": 'quat="0.95 0.1 0.2 0.2"',
+        "euler2": "0.3 0 0.2",
+        "joints1": '<joint name="j1" type="hinge" axis="0 0 1"/>',
+        "joints2": '<joint name="j2" type="hinge" axis="0 1 0"/>',
+        "inertial1": "",
+        "inertial2": "",
+        **_FORMS[form],
+    }
+    (tmp_path / "defaults.xml").write_text(_DEFAULTS)
+    path = tmp_path / f"{form}.xml"
+    path.write_text(_ARM.format(**fields))
+    return path
+
+
+def _without_constraints(m: mujoco.MjModel) -> mujoco.MjModel:
+    m = copy.deepcopy(m)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    return m
+
+
+def _assert_regressor_is_mujoco(plant, n: int = 60, seed: int = 0, atol: float = 1e-8) -> None:  # type: ignore[no-untyped-def]
+    """W theta (rigid body + armature + damping columns) + stiffness == mj_inverse with constraints off."""
+    model = ParameterModel(plant, ("armature", "viscous_friction"))
+    q, dq, ddq = random_states(plant, np.random.default_rng(seed), n)
+    predicted = np.einsum("knp,p->kn", model.regressor(q, dq, ddq), model.truth())
+    predicted += plant.stiffness * (q - plant.springref)
+    expected = inverse_dynamics(_without_constraints(plant.mj_model), q, dq, ddq)
+    scale = 1.0 + np.max(np.abs(expected))
+    np.testing.assert_allclose(predicted, expected, rtol=0, atol=atol * scale)
+
+
+@pytest.mark.parametrize("form", sorted(_FORMS))
+def test_every_mjcf_form_gives_mujocos_dynamics(form: str, tmp_path: Path) -> None:
+    plant = load_plant(_write_form(form, tmp_path))
+    _assert_regressor_is_mujoco(plant)
+    m = plant.mj_model
+    # the truth is what MuJoCo compiled: the total mass of the moving bodies
+    assert plant.theta[0::10].sum() == pytest.approx(m.body_mass[1:].sum(), rel=1e-12)
+    assert plant.theta[0::10].sum() > 0.1
+
+
+def test_geom_inertia_is_not_massless(tmp_path: Path) -> None:
+    """Pinocchio's own MJCF parser reads geom-inertia bodies as mass 0; built from the compiled model they are not."""
+    plant = load_plant(_write_form("geom_inertia", tmp_path))
+    m = plant.mj_model
+    np.testing.assert_allclose(plant.theta[[0, 10]], [m.body_mass[1], m.body_mass[2] + m.body_mass[3]], rtol=1e-12)
+
+
+def test_several_joints_in_one_body_carry_one_inertia(tmp_path: Path) -> None:
+    plant = load_plant(_write_form("several_joints_per_body", tmp_path))
+    assert plant.nv == 4
+    np.testing.assert_array_equal(plant.carries_body, [False, True, False, True])
+    assert not np.any(plant.theta[0:10]) and not np.any(plant.theta[20:30])  # earlier joints carry no body
+    own = own_body_parameters(plant)
+    assert own[10] == pytest.approx(plant.mj_model.body_mass[1])
+    assert own[30] == pytest.approx(plant.mj_model.body_mass[2])  # the welded tool belongs to the block, not own
+    assert plant.theta[30] == pytest.approx(plant.mj_model.body_mass[2] + plant.mj_model.body_mass[3])
+
+
+def test_degrees_are_read_as_the_compiler_says(tmp_path: Path) -> None:
+    plant = load_plant(_write_form("degrees_and_ref", tmp_path))
+    np.testing.assert_allclose(plant.q_range[0], np.deg2rad([-90, 120]))
+    np.testing.assert_allclose(plant.springref[1], np.deg2rad(10))
+
+
+@pytest.mark.skipif(not ROBOT_FILES, reason="../shared/robots/ is not beside the project (clone with shared/)")
+@pytest.mark.parametrize("path", ROBOT_FILES, ids=lambda p: p.stem)
+def test_every_shared_arm_gives_mujocos_dynamics(path: Path) -> None:
+    plant = load_plant(path)
+    assert plant.nv >= 6
+    _assert_regressor_is_mujoco(plant, n=30)
+
+
+def test_the_load_check_refuses_models_the_engines_disagree_on(tmp_path: Path) -> None:
+    # MuJoCo 4's polynomial joint damping is not in the torque model: the check names the joint
+    xml = _write_form("offset_tilted_joints", tmp_path).read_text().replace('damping="0.05"', 'damping="0.05 0.3 0"')
+    path = tmp_path / "polynomial.xml"
+    path.write_text(xml)
+    with pytest.raises(ModelError, match=r"differs from MuJoCo's by .* at joint 'j2'"):
+        load_plant(path)
+
+
+def test_the_load_check_catches_a_wrong_inertia(tmp_path: Path) -> None:
+    plant = load_plant(_write_form("diaginertia_quat", tmp_path))
+    plant.pin_model.inertias[2].mass *= 1.01  # the twin drifts from the compiled model
+    with pytest.raises(ModelError, match="differs from MuJoCo's"):
+        check_against_mujoco(plant, np.random.default_rng(0))
+
+
+def test_disabled_springs_and_dampers_are_left_out(tmp_path: Path) -> None:
+    xml = _write_form("several_joints_per_body", tmp_path).read_text()
+    xml = xml.replace(
+        '<compiler angle="radian"/>', '<compiler angle="radian"/><option><flag spring="disable"/></option>'
+    )
+    path = tmp_path / "nospring.xml"
+    path.write_text(xml)
+    plant = load_plant(path)
+    assert not np.any(plant.stiffness)
+    q, dq, ddq = random_states(plant, np.random.default_rng(2), 10)
+    expected = inverse_dynamics(_without_constraints(plant.mj_model), q, dq, ddq)
+    np.testing.assert_allclose(joint_torque(plant, q, dq, ddq, coulomb=False)[0], expected, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ('<equality><joint joint1="j1" joint2="j2"/></equality>', "equality constraint"),
+        ('<tendon><fixed name="t"><joint joint="j1" coef="1"/><joint joint="j2" coef="1"/></fixed></tendon>', "tendon"),
+    ],
+)
+def test_couplings_are_refused(tmp_path: Path, extra: str, message: str) -> None:
+    xml = _write_form("diaginertia_quat", tmp_path).read_text().replace("</mujoco>", extra + "</mujoco>")
+    path = tmp_path / "coupled.xml"
+    path.write_text(xml)
+    with pytest.raises(ModelError, match=message):
+        load_plant(path)
