@@ -8,6 +8,7 @@ torque is the torque the actuators really applied (after saturation), plus the s
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from typing import Protocol
 
@@ -75,7 +76,20 @@ def simulate_tracking(
         tau = tau_ff[k] + kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq)
         return actuation.ctrl_for_reference(tau, q, dq, q_ref[k], dq_ref[k])
 
-    return _run(plant, t, control, q0=q_ref[0], dq0=dq_ref[0], sensor=sensor, rng=rng)
+    targets = None
+    if any(a.is_servo for a in actuation.actuators):
+        # a servo's setpoint comes from a fast trajectory generator, not a 2 ms staircase: a kp 2000 servo on
+        # a light wrist answers each step within a physics step, and the sampled torque would be its spike
+        def targets(k: int, fraction: float, ctrl: np.ndarray) -> np.ndarray:
+            q_sub, dq_sub, _ = reference.evaluate(np.array([t[k] + fraction * (t[1] - t[0])]))
+            out = ctrl.copy()
+            servo = actuation.ctrl_for_reference(np.zeros(plant.nv), q_sub[0], dq_sub[0], q_sub[0], dq_sub[0])
+            for i, a in enumerate(actuation.actuators):
+                if a.is_servo:
+                    out[i] = servo[i]
+            return out
+
+    return _run(plant, t, control, q0=q_ref[0], dq0=dq_ref[0], sensor=sensor, rng=rng, targets=targets)
 
 
 def simulate_open_loop(
@@ -116,7 +130,31 @@ def _mass_diagonal(plant: Plant, q: np.ndarray) -> np.ndarray:
     return np.diag(full).copy()
 
 
-def _implicit_damping(plant: Plant) -> np.ndarray | None:
+# largest (rate x physics step) of a servo's spring sqrt(kp / M) or damper (kv + d) / M that the simulation
+# accepts: Menagerie's servo arms are tuned to be stable at 2 ms, not accurate (0.6 rad/step on a gen3 wrist)
+_MAX_RATE_STEP = 0.5
+
+
+def _resolved_model(plant: Plant, q0: np.ndarray) -> mujoco.MjModel:
+    """The plant's model, its physics step divided (by a whole number) until stiff servos are resolved."""
+    m = plant.mj_model
+    if not plant.actuation.actuators:
+        return m
+    inertia = _mass_diagonal(plant, q0)
+    rate = np.zeros(plant.nv)
+    for a in plant.actuation.actuators:
+        j = a.joint
+        stiffness, damping = -a.bias[1] * a.gear**2, -a.bias[2] * a.gear**2 + plant.damping[j]
+        rate[j] = max(np.sqrt(max(stiffness, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
+    split = int(np.ceil(float(rate.max()) * m.opt.timestep / _MAX_RATE_STEP))
+    if split <= 1:
+        return m
+    fine = copy.deepcopy(m)
+    fine.opt.timestep = m.opt.timestep / split
+    return fine
+
+
+def _implicit_damping(plant: Plant, m: mujoco.MjModel) -> np.ndarray | None:
     """(nv,) c such that reported torque = qfrc_actuator + c (v_next - v) undoes the integrator's implicit damping.
 
     MuJoCo's implicit integrators (and Euler, for joint damping) evaluate velocity-proportional forces at the
@@ -125,7 +163,6 @@ def _implicit_damping(plant: Plant) -> np.ndarray | None:
     armature). Reporting the torque as qfrc_actuator + (b2 gear^2 - d)(v_next - v) with the step's acceleration
     (v_next - v) / h gives data of the continuous-time robot. None where nothing is implicit.
     """
-    m = plant.mj_model
     integrator = int(m.opt.integrator)
     implicit_kinds = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
     eulerdamp = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
@@ -147,8 +184,11 @@ def _run(
     dq0: np.ndarray,
     sensor: SensorModel,
     rng: np.random.Generator,
+    targets: Callable[[int, float, np.ndarray], np.ndarray] | None = None,
 ) -> Dataset:
-    m = plant.mj_model
+    """Simulate sample by sample: ctrl from `control` at each sample (held), or, where `targets` is given,
+    updated at every physics step from it (targets(k, fraction of the sample interval, held ctrl))."""
+    m = _resolved_model(plant, q0)
     d = mujoco.MjData(m)
     dt_sample = t[1] - t[0]
     substeps = int(round(dt_sample / m.opt.timestep))
@@ -158,8 +198,8 @@ def _run(
             f"{m.opt.timestep} s"
         )
     n, nv = len(t), m.nv
-    q, dq, ddq, applied, cmd = (np.empty((n, nv)) for _ in range(5))
-    implicit = _implicit_damping(plant)
+    q, dq, ddq, applied, cmd, constraint = (np.empty((n, nv)) for _ in range(6))
+    implicit = _implicit_damping(plant, m)
     d.qpos[:], d.qvel[:] = q0, dq0
     for k in range(n):
         state = d.qpos.copy(), d.qvel.copy()
@@ -167,12 +207,16 @@ def _run(
         mujoco.mj_forward(m, d)
         q[k], dq[k], ddq[k] = d.qpos, d.qvel, d.qacc
         applied[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
+        constraint[k] = d.qfrc_constraint
         mujoco.mj_step(m, d)
         if implicit is not None:  # the step's own acceleration, and the torque that produced it
             step = d.qvel - state[1]
             ddq[k] = step / m.opt.timestep
             applied[k] = applied[k] + implicit * step
-        for _ in range(substeps - 1):
+        held = d.ctrl.copy()
+        for i in range(1, substeps):
+            if targets is not None:
+                d.ctrl[:] = targets(k, i / substeps, held)
             mujoco.mj_step(m, d)
         if not np.all(np.isfinite(d.qpos)):
             raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")
@@ -192,11 +236,14 @@ def _run(
         tau_cmd=cmd,
         # the command is held over [t_k, t_k + dt); semi-implicit Euler makes the sampled positions trail the
         # continuous motion by half a physics step, so the torque's instant is (dt - h) / 2 after the sample
-        tau_lead_s=0.5 * (dt_sample - m.opt.timestep),
+        # (a servo's torque is not held: it is sampled with the state it depends on, at the same instant)
+        tau_lead_s=0.0 if plant.actuation.servo else 0.5 * (dt_sample - m.opt.timestep),
         meta={
             "q_true": q,
             "dq_true": dq,
             "tau_applied": applied,
             "saturated_fraction": saturated[:, plant.actuated].mean(axis=0).tolist(),
+            # joint limits, contacts and frictionloss act through constraints: the largest such torque [N m]
+            "constraint_torque_max": np.abs(constraint).max(axis=0).tolist(),
         },
     )

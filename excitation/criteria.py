@@ -11,9 +11,10 @@ values, `sharpness` p): J_p = (log sum s^p + log sum s^-p) / p, which lies betwe
 log cond + 2 log(r) / p. The value reported is always the true cond. Every effect column of the model
 (friction, armature, ...) is part of W.
 
-The gradient is the chain rule, not a finite difference of J: dJ/dA from the singular value decomposition
-(ds_i = u_i' dA v_i), dY/d(q, dq, ddq) per sample (one small step per joint and state: exact in ddq, where
-the regressor is linear), and the Fourier basis maps from the coefficients to (q, dq, ddq).
+The gradient is the chain rule, not a finite difference of J: dJ/dA from the singular values and vectors
+(ds_i = u_i' dA v_i, with s and v from the eigenpairs of A'A), dY/d(q, dq, ddq) per sample (one small step
+per joint and state: exact in ddq, where the regressor is linear), and the Fourier basis maps from the
+coefficients to (q, dq, ddq).
 """
 
 from __future__ import annotations
@@ -37,21 +38,32 @@ _STEP_DQ = 1e-6  # [rad/s]
 MatrixCriterion = Callable[[np.ndarray, float | None], tuple[float, np.ndarray]]
 
 
+def _singular(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values s (descending) and right vectors V (r, r) of A (M, r), from the eigenpairs of A'A.
+
+    The (r, r) eigenproblem replaces an SVD of the tall A (the criterion's hot spot: 75 % of a 7-DoF design's
+    time); s_min is exact to eps s_max^2 / s_min, ample while cond(X'X) << 1e12.
+    """
+    w, V = np.linalg.eigh(A.T @ A)
+    return np.sqrt(np.clip(w[::-1], 0.0, None)), V[:, ::-1]
+
+
 def _soft_log_cond(A: np.ndarray, sharpness: float | None) -> tuple[float, np.ndarray]:
-    U, s, Vt = np.linalg.svd(A, full_matrices=False)
+    # ds_i = u_i' dA v_i with u_i = A v_i / s_i: the gradient sum_i w_i u_i v_i' is A V diag(w / s) V'
+    s, V = _singular(A)
     if s[-1] <= 0:
         return np.inf, np.zeros_like(A)
     if sharpness is None:  # the exact cond: its gradient jumps where the extreme singular values cross
         w = np.zeros_like(s)
         w[0], w[-1] = 1.0 / s[0], -1.0 / s[-1]
-        return float(np.log(s[0] / s[-1])), (U * w) @ Vt
+        return float(np.log(s[0] / s[-1])), (A @ (V * (w / s))) @ V.T
     p = float(sharpness)
     hi = p * np.log(s / s[0])  # shifted for overflow safety
     lo = -p * np.log(s / s[-1])
     e_hi, e_lo = np.exp(hi), np.exp(lo)
     value = np.log(s[0] / s[-1]) + (np.log(e_hi.sum()) + np.log(e_lo.sum())) / p
     w = (e_hi / e_hi.sum() - e_lo / e_lo.sum()) / s
-    return float(value), (U * w) @ Vt
+    return float(value), (A @ (V * (w / s))) @ V.T
 
 
 def _cond(A: np.ndarray, sharpness: float | None) -> tuple[float, np.ndarray]:

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
+from dynamics.clearance import Clearance, clearance_for
 from dynamics.plant import Plant
 
 __all__ = ["Limits", "limits_for"]
@@ -21,6 +23,7 @@ class Limits:
         ddq_max: acceleration bound [rad/s^2].
         tau_max: torque bound [N m] (the actuator's limit times the torque margin; inf where unactuated).
         joint_names: names used in messages.
+        clearance: the smallest distance kept between non-adjacent links and to the floor, or None.
     """
 
     q_min: np.ndarray
@@ -29,6 +32,7 @@ class Limits:
     ddq_max: np.ndarray
     tau_max: np.ndarray
     joint_names: tuple[str, ...]
+    clearance: Clearance | None = None
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -57,11 +61,15 @@ class Limits:
             out["ddq"] = float(np.max(np.abs(ddq) / self.ddq_max))
         if tau is not None:
             out["tau"] = float(np.max(np.abs(tau) / self.tau_max))
+        if self.clearance is not None:
+            out["clearance"] = self.clearance.ratio(q)
         return out
 
     def binding(self, ratios: dict[str, float], q: np.ndarray, dq: np.ndarray) -> str:
         """A readable name of the most used bound, e.g. `dq[elbow] <= 8 rad/s`."""
         key = max(ratios, key=lambda k: ratios[k])
+        if key == "clearance" and self.clearance is not None:
+            return f"clearance (at least {self.clearance.clearance_m:.3g} m between links and to the floor)"
         units = {"q": "rad", "dq": "rad/s", "ddq": "rad/s^2", "tau": "N m"}
         bound = {"q": self.q_max, "dq": self.dq_max, "ddq": self.ddq_max, "tau": self.tau_max}[key]
         per_joint = ", ".join(f"{j} {b:.4g}" for j, b in zip(self.joint_names, bound, strict=True))
@@ -71,7 +79,10 @@ class Limits:
         def clean(a: np.ndarray) -> list[float]:
             return [float(x) if np.isfinite(x) else None for x in a]  # type: ignore[misc]
 
-        return {k: clean(getattr(self, k)) for k in ("q_min", "q_max", "dq_max", "ddq_max", "tau_max")}
+        out: dict = {k: clean(getattr(self, k)) for k in ("q_min", "q_max", "dq_max", "ddq_max", "tau_max")}
+        if self.clearance is not None:
+            out["clearance_m"] = self.clearance.clearance_m
+        return out
 
 
 def limits_for(
@@ -81,6 +92,7 @@ def limits_for(
     acceleration: float | list[float],
     range_margin: float = 0.05,
     torque_margin: float = 0.9,
+    clearance_m: float | None = None,
 ) -> Limits:
     """Limits from the MJCF (range, actuator torque) and the config (speed, acceleration).
 
@@ -89,6 +101,8 @@ def limits_for(
         acceleration: acceleration bound per joint (or one for all) [rad/s^2].
         range_margin: fraction of each finite joint range kept free at both ends.
         torque_margin: fraction of the actuator's torque limit the nominal model may use.
+        clearance_m: smallest distance kept between non-adjacent links and to the floor [m] (None: unchecked),
+            referenced to the model's `home` keyframe (else its qpos0) to leave out pairs built to touch.
     """
     n = plant.nv
     lo, hi = plant.q_range[:, 0].copy(), plant.q_range[:, 1].copy()
@@ -104,4 +118,12 @@ def limits_for(
         ddq_max=np.broadcast_to(np.asarray(acceleration, dtype=float), (n,)).copy(),
         tau_max=tau,
         joint_names=plant.joint_names,
+        clearance=None if clearance_m is None else clearance_for(plant, clearance_m, _home(plant)),
     )
+
+
+def _home(plant: Plant) -> np.ndarray:
+    m = plant.mj_model
+    key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+    q = m.key_qpos[key].copy() if key >= 0 else m.qpos0.copy()
+    return np.clip(q, plant.q_range[:, 0], plant.q_range[:, 1])

@@ -8,8 +8,9 @@ assumed. The defaults are stated, not tuned per robot:
 - torque_driven: true when some joint has no actuator;
 - velocity: the URDF's velocity limit where given, else `DEFAULT_VELOCITY`; acceleration `DEFAULT_ACCELERATION`;
 - sample rate: the fastest rate <= `MAX_SAMPLE_RATE_HZ` that is a whole number of physics steps;
-- torque noise: `NOISE_FRACTION` of each joint's torque scale (its actuator limit, or twice its largest
-  gravity torque over random states where the actuator has none); resolution: the scale over 2^11.
+- torque noise: `NOISE_FRACTION` of each joint's torque scale (its actuator limit, or twice the largest torque
+  it needs at random states within the default speed and acceleration where the actuator has none);
+  resolution: the smallest scale over 2^11.
 """
 
 from __future__ import annotations
@@ -52,11 +53,14 @@ def declared_effects(plant: Plant) -> list[str]:
 
 
 def torque_scale(plant: Plant) -> np.ndarray:
-    """(nv,) each joint's torque scale [N m]: its actuator limit, or twice its largest gravity torque."""
-    q = random_states(plant, np.random.default_rng(0), 200)[0]
-    zeros = np.zeros_like(q)
-    gravity = np.max(np.abs(joint_torque(plant, q, zeros, zeros, coulomb=False)[0]), axis=0)
-    scale = np.where(np.isfinite(plant.tau_limit), plant.tau_limit, 2.0 * gravity)
+    """(nv,) each joint's torque scale [N m]: its actuator limit, or twice the largest torque it needs at random
+    states within the default speed and acceleration (gravity alone leaves a vertical axis at zero)."""
+    rng = np.random.default_rng(0)
+    q = random_states(plant, rng, 200)[0]
+    dq = rng.uniform(-DEFAULT_VELOCITY, DEFAULT_VELOCITY, q.shape)
+    ddq = rng.uniform(-DEFAULT_ACCELERATION, DEFAULT_ACCELERATION, q.shape)
+    needed = np.max(np.abs(joint_torque(plant, q, dq, ddq, coulomb=False)[0]), axis=0)
+    scale = np.where(np.isfinite(plant.tau_limit), plant.tau_limit, 2.0 * needed)
     return np.where(scale > 0, scale, 1.0)
 
 

@@ -142,6 +142,17 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
             "limits_ok": bool(max(ratios.values()) <= 1.0 + 1e-9),
             "limit_ratios": ratios,
             "limits": limits.to_dict(),
+            "clearance": None
+            if limits.clearance is None
+            else {
+                "required_m": limits.clearance.clearance_m,
+                "min_distance_m": limits.clearance.clearance_m / ratios["clearance"]
+                if ratios["clearance"] > 0
+                else None,
+                "holds": bool(ratios["clearance"] <= 1.0),
+                "shapes": len(limits.clearance.shapes),
+                "pairs_checked": len(limits.clearance.pairs),
+            },
             "coefficients": {"a": design.a, "b": design.b, "q0": design.q0},
         },
         "base_parameters": [c.to_dict() for c in comparison],
@@ -194,6 +205,9 @@ def _write_outputs(out: Path, cfg: DictConfig, results: dict, data: Dataset, pro
     """data.csv and recording.rrd first, results.json last: a results file means a finished run."""
     out.mkdir(parents=True, exist_ok=True)
     write_csv(data, out / "data.csv")
+    plant = problem.model.plant
+    if plant.source is not None:  # a URDF: the MJCF that MuJoCo compiled from it, and that was used
+        (out / "model.xml").write_text(plant.path.read_text())
     if cfg.record.kind == "rerun":
         from harness.record import record_run
 

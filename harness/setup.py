@@ -90,6 +90,7 @@ def limits_from_config(system: DictConfig, plant: Plant) -> Limits:
         acceleration=_plain(lim.acceleration),
         range_margin=float(lim.range_margin),
         torque_margin=float(lim.torque_margin),
+        clearance_m=None if lim.get("clearance_m") is None else float(lim.clearance_m),
     )
 
 

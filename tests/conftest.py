@@ -13,10 +13,13 @@ from harness.setup import CONF_DIR
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def compose_config(overrides: list[str] | None = None, config_name: str = "config") -> DictConfig:
-    """The config `sysid-run` would see with these command-line overrides."""
+def compose_config(
+    overrides: list[str] | None = None, config_name: str = "config", *, config_dir: Path | None = None
+) -> DictConfig:
+    """The config `sysid-run` would see with these command-line overrides (and a user's config folder)."""
+    extra = [f"hydra.searchpath=[file://{Path(config_dir).resolve()}]"] if config_dir is not None else []
     with initialize_config_dir(str(CONF_DIR), version_base=None):
-        return compose(config_name, overrides=overrides or [])
+        return compose(config_name, overrides=[*(overrides or []), *extra])
 
 
 @pytest.fixture

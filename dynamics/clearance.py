@@ -1,0 +1,146 @@
+"""Clearance of an arm from itself and from the floor along a motion.
+
+Shapes: the model's own collision geometry (geoms with a nonzero `contype` or `conaffinity`) where it has
+some, and for every moving body without any, a capsule from its frame to each child's frame (to its own
+centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `mj_geomDistance` between
+collision geoms, a closed form between capsules; the floor is the world plane z = 0.
+
+Pairs that can never be apart are left out: shapes on the same or adjacent bodies (parent and child), pairs
+MuJoCo excludes from contact, and pairs (or floor checks) already closer than the clearance at the
+reference pose (links built to touch, the first link on its base).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from dynamics.plant import Plant
+
+__all__ = ["FALLBACK_RADIUS_M", "Clearance", "clearance_for"]
+
+FALLBACK_RADIUS_M = 0.03
+
+
+@dataclass(frozen=True)
+class _Shape:
+    body: int
+    geom: int  # -1 for a fallback capsule
+    ends: tuple[np.ndarray, np.ndarray]  # capsule end points in the body frame
+    radius: float
+
+
+def _segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """(N,) shortest distance between segments p1-q1 and p2-q2, each (N, 3)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e = np.sum(d1 * d1, axis=1), np.sum(d2 * d2, axis=1)
+    f, c, b = np.sum(d2 * r, axis=1), np.sum(d1 * r, axis=1), np.sum(d1 * d2, axis=1)
+    denom = a * e - b * b
+    s = np.where(denom > 1e-12, np.clip((b * f - c * e) / np.where(denom > 1e-12, denom, 1.0), 0, 1), 0.0)
+    t = np.where(e > 1e-12, (b * s + f) / np.where(e > 1e-12, e, 1.0), 0.0)
+    s = np.where(
+        t < 0,
+        np.clip(-c / np.where(a > 1e-12, a, 1.0), 0, 1),
+        np.where(t > 1, np.clip((b - c) / np.where(a > 1e-12, a, 1.0), 0, 1), s),
+    )
+    t = np.clip(t, 0, 1)
+    return np.linalg.norm((p1 + d1 * s[:, None]) - (p2 + d2 * t[:, None]), axis=1)
+
+
+class Clearance:
+    """The smallest distance between an arm's non-adjacent links and to the floor, along joint angles."""
+
+    def __init__(self, plant: Plant, shapes: list[_Shape], q_ref: np.ndarray, clearance_m: float) -> None:
+        self.plant, self.shapes, self.clearance_m = plant, shapes, float(clearance_m)
+        m = plant.mj_model
+        parent = m.body_parentid
+        excluded = {
+            (int(b1), int(b2)) for b1, b2 in zip(m.exclude_signature >> 16, m.exclude_signature & 0xFFFF, strict=True)
+        }
+        candidates = []
+        for i, si in enumerate(shapes):
+            for j in range(i + 1, len(shapes)):
+                sj = shapes[j]
+                a, b = si.body, sj.body
+                if a == b or parent[a] == b or parent[b] == a or (a, b) in excluded or (b, a) in excluded:
+                    continue
+                candidates.append((i, j))
+        self.pairs = candidates
+        self.floor = list(range(len(shapes)))
+        pair_d, floor_d = self._distances(np.atleast_2d(q_ref))
+        self.pairs = [p for p, d in zip(self.pairs, pair_d[0], strict=True) if d > clearance_m]
+        self.floor = [k for k, d in zip(self.floor, floor_d[0], strict=True) if d > clearance_m]
+
+    def _distances(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = self.plant.mj_model
+        d = mujoco.MjData(m)
+        n = len(q)
+        ends = np.empty((len(self.shapes), 2, n, 3))
+        pair_d = np.empty((n, len(self.pairs)))
+        floor_d = np.empty((n, len(self.floor)))
+        geoms = [(k, i, j) for k, (i, j) in enumerate(self.pairs) if min(self.shapes[i].geom, self.shapes[j].geom) >= 0]
+        for s in range(n):
+            d.qpos[:] = q[s]
+            mujoco.mj_kinematics(m, d)
+            for k, shape in enumerate(self.shapes):
+                R, p = d.xmat[shape.body].reshape(3, 3), d.xpos[shape.body]
+                ends[k, 0, s], ends[k, 1, s] = p + R @ shape.ends[0], p + R @ shape.ends[1]
+            for k, i, j in geoms:
+                pair_d[s, k] = mujoco.mj_geomDistance(m, d, self.shapes[i].geom, self.shapes[j].geom, 10.0, None)
+        for k, (i, j) in enumerate(self.pairs):
+            if min(self.shapes[i].geom, self.shapes[j].geom) >= 0:
+                continue
+            si, sj = self.shapes[i], self.shapes[j]
+            seg = _segment_distance(ends[i, 0], ends[i, 1], ends[j, 0], ends[j, 1])
+            pair_d[:, k] = seg - si.radius - sj.radius
+        for k, i in enumerate(self.floor):
+            floor_d[:, k] = np.minimum(ends[i, 0, :, 2], ends[i, 1, :, 2]) - self.shapes[i].radius
+        return pair_d, floor_d
+
+    def min_distance(self, q: np.ndarray, *, max_points: int = 400) -> float:
+        """Smallest distance [m] over the samples q (N, nv) (at most `max_points` of them, evenly spaced)."""
+        if not self.pairs and not self.floor:
+            return float("inf")
+        q = np.atleast_2d(q)
+        if len(q) > max_points:
+            q = q[np.linspace(0, len(q) - 1, max_points).round().astype(int)]
+        pair_d, floor_d = self._distances(q)
+        return float(min(pair_d.min(initial=np.inf), floor_d.min(initial=np.inf)))
+
+    def ratio(self, q: np.ndarray) -> float:
+        """clearance / smallest distance: <= 1 where the clearance holds (inf once links touch)."""
+        dist = self.min_distance(q)
+        return float(self.clearance_m / dist) if dist > 0 else float("inf")
+
+
+def _geom_capsule(m: mujoco.MjModel, g: int) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+    """A capsule around geom g in its body frame (exact for spheres and capsules, bounding otherwise)."""
+    flat = np.empty(9)
+    mujoco.mju_quat2Mat(flat, m.geom_quat[g])
+    R = flat.reshape(3, 3)
+    pos, size = m.geom_pos[g], m.geom_size[g]
+    kind = int(m.geom_type[g])
+    if kind in (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER)):
+        axis = R[:, 2] * size[1]
+        return (pos - axis, pos + axis), float(size[0])
+    return (pos.copy(), pos.copy()), float(m.geom_rbound[g])
+
+
+def clearance_for(plant: Plant, clearance_m: float, q_ref: np.ndarray) -> Clearance:
+    """The clearance check of a plant (see the module docstring), referenced to the pose q_ref (nv,)."""
+    m = plant.mj_model
+    moving = {int(b) for b in range(1, m.nbody) if m.body_weldid[b] != 0}
+    colliding = [
+        g for g in range(m.ngeom) if (m.geom_contype[g] or m.geom_conaffinity[g]) and m.geom_bodyid[g] in moving
+    ]
+    shapes = [_Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g)) for g in colliding]
+    covered = {s.body for s in shapes}
+    for b in sorted(moving - covered):
+        children = [c for c in range(1, m.nbody) if m.body_parentid[c] == b]
+        targets = [m.body_pos[c].copy() for c in children] or [m.body_ipos[b].copy()]
+        for target in targets:
+            if np.linalg.norm(target) > 1e-6:
+                shapes.append(_Shape(b, -1, (np.zeros(3), target), FALLBACK_RADIUS_M))
+    return Clearance(plant, shapes, q_ref, clearance_m)

@@ -1,0 +1,94 @@
+"""`sysid-init <model> [--out <dir>/system/<name>.yaml]`: a system config for a model, every key explained.
+
+The values are what `sysid-run system.mjcf=<model>` would assume (see `harness.defaults`), written out for
+the user to edit. Keep it outside the repository and point the harness at its folder:
+
+    sysid-init robots/arm.xml --out ~/sysid-conf/system/arm.yaml
+    sysid-run --config-dir ~/sysid-conf system=arm          # or: hydra.searchpath=[file://$HOME/sysid-conf]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from dynamics.errors import SysIdError
+from dynamics.plant import load_plant
+from harness.defaults import resolve_system
+from harness.setup import CONF_DIR
+
+__all__ = ["main", "system_config_text"]
+
+
+def _value(value: object) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def system_config_text(model: Path) -> str:
+    """The YAML text: the auto config's comments, each null replaced by the model's value."""
+    plant = load_plant(model)
+    auto = OmegaConf.load(CONF_DIR / "system" / "auto.yaml")
+    auto.mjcf = str(model.resolve())
+    resolved = OmegaConf.create(OmegaConf.to_container(resolve_system(auto, plant)[0], resolve=True))  # type: ignore[arg-type]
+    lines = [
+        f"# System config for {model.name}, written by sysid-init from the model (edit any value).",
+        f"# Use it with: sysid-run --config-dir <the folder above system/> system={plant.name}",
+    ]
+    prefix: list[str] = []
+    for line in (CONF_DIR / "system" / "auto.yaml").read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        indent = len(line) - len(line.lstrip())
+        body, _, comment = line.strip().partition("#")
+        if ":" not in body:  # a comment continuing on its own line
+            lines.append(line)
+            continue
+        key, _, raw = body.partition(":")
+        prefix = [*prefix[: indent // 2], key.strip()]
+        if not raw.strip():
+            lines.append(line)
+            continue
+        value = OmegaConf.select(resolved, ".".join(prefix))
+        value = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
+        text = f"{' ' * indent}{key.strip()}: {_value(value)}"
+        lines.append(f"{text:<30} # {comment.strip()}" if comment else text)
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point `sysid-init`."""
+    parser = argparse.ArgumentParser(prog="sysid-init", description=__doc__.splitlines()[0])
+    parser.add_argument("model", type=Path, help="an MJCF (.xml) or URDF (.urdf) file")
+    parser.add_argument("--out", type=Path, help="where to write it (default: print it)")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing file")
+    args = parser.parse_args(argv)
+    try:
+        text = system_config_text(args.model)
+    except (SysIdError, ValueError) as err:
+        print(f"sysid-init: error: {err}", file=sys.stderr)
+        return 2
+    if args.out is None:
+        print(text, end="")
+        return 0
+    if args.out.exists() and not args.force:
+        print(f"sysid-init: error: {args.out} exists; pass --force to overwrite it", file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_name(f".{args.out.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

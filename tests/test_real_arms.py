@@ -1,0 +1,170 @@
+"""Real arms from one command: every MuJoCo Menagerie arm in ../shared/robots/ and a URDF arm from the
+`example-robot-data` package pass `sysid-run system.mjcf=<file>` with nothing else but a shorter run.
+
+Fast variants of the bench's table (`python -m bench arms` runs the full loop): max |z| <= 4.5, validation
+RMS within 1.3x the sensor noise on every joint, limits and clearance hold.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from dynamics.actuators import actuation_of
+from dynamics.plant import load_plant
+from dynamics.sampling import random_states
+from dynamics.torque import joint_torque
+from harness.run import run
+from harness.setup import system_for_overrides
+from tests.conftest import compose_config
+
+REPO = Path(__file__).resolve().parents[1]
+ROBOTS = REPO.parent / "shared" / "robots"
+ARMS = sorted(ROBOTS.glob("*.xml")) if ROBOTS.is_dir() else []
+_ERD = "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
+
+
+def _urdf() -> Path | None:
+    try:
+        path = Path(str(metadata.distribution("example-robot-data").locate_file(_ERD)))
+    except metadata.PackageNotFoundError:
+        return None
+    return path if path.is_file() else None
+
+
+URDF = _urdf()
+# the shortened run: one optimisation start and short records (the bench runs the defaults)
+FAST = ["record=none", "excitation.options.starts=1", "system.periods=2", "validation.periods=1"]
+
+
+def _run(model: Path, tmp_path: Path, overrides: list[str] | None = None) -> dict:
+    overrides = [f"system.mjcf={model}", *(FAST if overrides is None else overrides)]
+    cfg = system_for_overrides(compose_config(overrides), overrides)
+    return run(cfg, tmp_path / "run")
+
+
+def _check(results: dict) -> None:
+    assert results["max_abs_z"] <= 4.5, sorted(results["base_parameters"], key=lambda p: -abs(p["z"]))[:3]
+    rms, noise = results["validation"]["torque_rms"], results["validation"]["noise_std"]
+    for joint, value in rms.items():
+        assert value <= 1.3 * noise[joint], (joint, value, noise[joint])
+    assert results["excitation"]["limits_ok"], results["excitation"]["limit_ratios"]
+    clearance = results["excitation"]["clearance"]
+    assert clearance is not None and clearance["holds"], clearance
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not ARMS, reason="../shared/robots/ is not beside the project (clone with shared/)")
+@pytest.mark.parametrize("model", ARMS, ids=lambda p: p.stem)
+def test_every_shared_arm_passes_sysid_run_with_nothing_else(model: Path, tmp_path: Path) -> None:
+    results = _run(model, tmp_path)
+    _check(results)
+    assert results["system"] == model.stem
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(URDF is None, reason="example-robot-data is not installed (pip install -e '.[dev]')")
+def test_a_urdf_arm_passes_and_its_mjcf_is_written(tmp_path: Path) -> None:
+    assert URDF is not None
+    results = _run(URDF, tmp_path)
+    _check(results)
+    written = tmp_path / "run" / "model.xml"
+    assert written.is_file() and load_plant(written).nv == 6  # the MJCF actually used is in the run folder
+
+
+@pytest.mark.skipif(URDF is None, reason="example-robot-data is not installed (pip install -e '.[dev]')")
+def test_urdf_through_mujoco_matches_pinocchios_own_urdf_reading() -> None:
+    assert URDF is not None
+    plant = load_plant(URDF)
+    pm = pin.buildModelFromUrdf(str(URDF))
+    assert tuple(pm.names[1:]) == plant.joint_names
+    np.testing.assert_allclose(plant.tau_limit, pm.effortLimit)  # motors at the URDF's effort limits
+    q, dq, ddq = random_states(plant, np.random.default_rng(0), 30)
+    data = pm.createData()
+    theirs = np.array([pin.rnea(pm, data, q[k], dq[k], ddq[k]) for k in range(len(q))])
+    ours = joint_torque(plant, q, dq, ddq)[0]
+    # the compiled MJCF text keeps six significant digits of each inertia (3e-7 kg m^2 on the UR5's 0.2)
+    np.testing.assert_allclose(ours, theirs, atol=2e-5 * (1 + np.abs(theirs).max()))
+    assert np.max(np.abs(ours - theirs)) > 0  # two readings of one file, not one model compared with itself
+
+
+@pytest.mark.skipif(not ARMS, reason="../shared/robots/ is not beside the project (clone with shared/)")
+def test_servo_torque_limits_come_from_the_force_range_not_the_angle_range() -> None:
+    plant = load_plant(ROBOTS / "panda_nohand.xml")
+    np.testing.assert_allclose(plant.tau_limit, [87, 87, 87, 87, 12, 12, 12])
+    kinds = {a.kind for a in plant.actuation.actuators}
+    assert kinds == {"position"} and plant.actuation.servo
+    assert np.all(np.isinf(load_plant(ROBOTS / "iiwa14.xml").tau_limit))  # no force range: nothing limits it
+
+
+def test_every_actuator_kind_applies_the_torque_it_is_asked_for() -> None:
+    xml = """<mujoco><worldbody><body><joint name="a" axis="0 1 0"/><geom size=".1" mass="1" pos="0 0 -.2"/>
+      <body pos="0 0 -.3"><joint name="b" axis="0 1 0"/><geom size=".05" mass=".5" pos="0 0 -.1"/>
+      <body pos="0 0 -.2"><joint name="c" axis="1 0 0"/><geom size=".05" mass=".3" pos="0 0 -.1"/>
+      <body pos="0 0 -.2"><joint name="d" axis="1 0 0"/><geom size=".05" mass=".2" pos="0 0 -.1"/>
+      </body></body></body></body></worldbody><actuator><motor joint="a" gear="3"/>
+      <position joint="b" kp="50" kv="2"/><velocity joint="c" kv="4"/>
+      <general joint="d" gainprm="2" biastype="affine" biasprm="0.1 -1 -0.5" gear="2"/></actuator></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    actuation = actuation_of(m, "fixture")
+    assert [a.kind for a in actuation.actuators] == ["motor", "position", "velocity", "general"]
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q, dq, tau = rng.normal(size=4), rng.normal(size=4), rng.normal(size=4)
+        d.qpos[:], d.qvel[:] = q, dq
+        d.ctrl[:] = actuation.ctrl_for_torque(tau, q, dq)
+        mujoco.mj_forward(m, d)
+        np.testing.assert_allclose(d.qfrc_actuator, tau, atol=1e-12)
+        np.testing.assert_allclose(actuation.unclamped_torque(d.ctrl, q, dq), tau, atol=1e-12)
+    targets = actuation.ctrl_for_reference(np.zeros(4), q, dq, np.full(4, 0.3), np.full(4, -0.2))
+    assert targets[1] == pytest.approx(0.3) and targets[2] == pytest.approx(-0.2)
+
+
+@pytest.mark.skipif(not ARMS, reason="../shared/robots/ is not beside the project (clone with shared/)")
+def test_a_servo_arm_is_identified_through_its_own_servos_without_the_integrators_bias(tmp_path: Path) -> None:
+    """The Panda's kv = 200 servos under implicitfast looked like 0.4 kg m^2 of extra armature; not any more."""
+    results = _run(ROBOTS / "panda_nohand.xml", tmp_path, ["record=none", "excitation=default", "system.periods=2"])
+    armature = [p for p in results["base_parameters"] if p["name"] in {f"Ia{j}" for j in range(3, 8)}]
+    assert len(armature) == 5
+    for p in armature:
+        assert abs(p["estimate"] - p["true"]) < 0.02 and abs(p["z"]) < 4.5, p
+
+
+def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
+    model = ROBOTS / "so_arm100.xml"
+    if not model.is_file():
+        pytest.skip("../shared/robots/ is not beside the project (clone with shared/)")
+    out = tmp_path / "conf" / "system" / "so_arm.yaml"
+    proc = subprocess.run(
+        [sys.executable, "-m", "harness.init", str(model), "--out", str(out)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    text = out.read_text()
+    assert "# " in text and "sigma_tau" in text and "clearance_m" in text
+    again = subprocess.run(
+        [sys.executable, "-m", "harness.init", str(model), "--out", str(out)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert again.returncode == 2 and "exists" in again.stderr  # never overwritten without --force
+    cfg = compose_config(["system=so_arm", *FAST], config_dir=tmp_path / "conf")
+    assert cfg.system.mjcf == str(model.resolve())
+    results = run(cfg, tmp_path / "run")
+    assert json.loads((tmp_path / "run" / "results.json").read_text())["system"] == results["system"]
