@@ -26,6 +26,7 @@ __all__ = [
     "ROLE_COLORS",
     "diagnosis_blueprint",
     "log_joint_series",
+    "parameter_entity",
     "record_diagnosis",
     "record_run",
     "run_blueprint",
@@ -33,9 +34,10 @@ __all__ = [
     "style_series",
 ]
 
-# Okabe-Ito colours (distinct for colour-blind readers) on rerun's dark background; measured is near white.
+# Okabe-Ito colours (distinct for colour-blind readers); measured is a mid grey, drawn widest, so that it reads
+# on the viewer's light and dark themes alike and stays visible around a model line that fits it to the noise.
 ROLE_COLORS: dict[str, tuple[int, int, int]] = {
-    "measured": (235, 235, 235),
+    "measured": (120, 120, 120),
     "nominal": (230, 159, 0),
     "model": (86, 180, 233),
     "reference": (204, 121, 167),
@@ -205,22 +207,28 @@ def record_run(path: Path, plant: Plant, results: dict[str, Any], series: dict[s
 def _log_parameters(rec: rr.RecordingStream, params: list[dict[str, Any]]) -> None:
     """The table, and one named bar per base parameter (its z) over the reference band |z| <= 2."""
     rec.log("parameters/table", rr.TextDocument(_parameter_markdown(params), media_type="text/markdown"), static=True)
+    # rerun draws a bar from its abscissa to abscissa + width: bar i spans [i, i + 0.7], the band all of them
     n = len(params)
     band = (*ROLE_COLORS["reference"], 70)
-    for sign, label in ((1.0, "+2 std"), (-1.0, "-2 std")):
+    for sign, label in ((1.0, "band_plus_2_std"), (-1.0, "band_minus_2_std")):
         rec.log(
-            f"parameters/z/{rr.escape_entity_path_part(label)}",
-            rr.BarChart([2.0 * sign], abscissa=[(n - 1) / 2.0], widths=[float(n)], color=band),
+            f"parameters/z/{label}",
+            rr.BarChart([2.0 * sign], abscissa=[-0.15], widths=[float(n)], color=band),
             static=True,
         )
     for i, p in enumerate(params):
         z = p["z"] if p["z"] is not None else 0.0
-        label = f"{i}: {p['name']}"
         rec.log(
-            f"parameters/z/{rr.escape_entity_path_part(label)}",
+            f"parameters/z/{parameter_entity(i, p['name'])}",
             rr.BarChart([float(z)], abscissa=[float(i)], widths=[0.7], color=ROLE_COLORS["model"]),
             static=True,
         )
+
+
+def parameter_entity(index: int, name: str) -> str:
+    """The z bar's entity name (the legend's label) of base parameter `index` named `name`: `p3_YY1_0.04m2_Ia1`."""
+    text = name.replace(" ", "").replace("+", "_").replace("*", "").replace("-", "_minus_")
+    return f"p{index}_" + "".join(c if c.isalnum() or c in "._" else "_" for c in text).strip("_")
 
 
 def _safe(name: str) -> str:
@@ -233,7 +241,7 @@ def _parameter_markdown(params: list[dict[str, Any]]) -> str:
         z = "-" if p["z"] is None else f"{p['z']:+.2f}"
         std = "-" if p["std"] is None else f"{p['std']:.2g}"
         lines.append(f"| {i} | {p['name']} | {p['true']:.6g} | {p['estimate']:.6g} | {std} | {z} |")
-    lines += ["", "Bars: z of each parameter (numbered as here); shaded: the |z| <= 2 band."]
+    lines += ["", "Bars: z of each parameter, p# numbered as here; shaded: the |z| <= 2 band."]
     return "\n".join(lines)
 
 
@@ -351,13 +359,11 @@ def record_diagnosis(
     header = [
         f"**data set:** {dataset or ', '.join(label for _, label in records)}",
         f"**validation records:** {', '.join(label for _, label in records)} (one tab each)",
-        "",
         f"**verdict: {result.verdict}**: {_criterion(result.verdict, selection)}",
-        "",
         f"Torques and residuals are compared in the {band}, as in the table below; the q panels re-start the "
         f"simulations from the measured state every {result.info.get('window_s', 0.25):g} s.",
-        "",
     ]
+    body = "\n".join(ln for ln in findings_markdown.splitlines() if not ln.startswith("**verdict"))
     ghost_plant = calibrated or plant
 
     def fill(rec: rr.RecordingStream) -> None:
@@ -425,7 +431,7 @@ def record_diagnosis(
                 _series(
                     rec, f"{base}/q/simulated_calibrated", ts, r["q_calibrated"][:, j], "model", "calibrated sim [rad]"
                 )
-        text = "\n".join(header) + findings_markdown
+        text = "\n\n".join(header) + "\n\n" + body.strip("\n")
         rec.log("findings", rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     save_recording(path, "sysid-diagnose", fill)

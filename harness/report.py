@@ -132,13 +132,15 @@ def _record(path: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]
     ok = [r for r in rows if r["status"] == "ok"]
     numeric = [c for c in dict.fromkeys(k for r in ok for k in r) if all(isinstance(r.get(c), float) for r in ok)]
     normalised = {r["job"]: _normalised_rms(r) for r in (records or [])}
-    charts: dict[str, list[tuple[str, float]]] = {
-        c: [(r["job"], float(r[c])) for r in ok] for c in numeric if not c.startswith("val_rms_")
-    }
+    per_job = {c: [(r["job"], float(r[c])) for r in ok] for c in numeric if not c.startswith("val_rms_")}
+    charts: dict[str, list[tuple[str, float]]] = {}
+    if "max_abs_z" in per_job:  # the key metrics first
+        charts["max_abs_z"] = per_job.pop("max_abs_z")
     if any(normalised.values()):
         charts["val_rms_over_noise"] = [
-            (f"{job}: {joint}", value) for job, per_joint in normalised.items() for joint, value in per_joint.items()
+            (f"{job}_{joint}", value) for job, per_joint in normalised.items() for joint, value in per_joint.items()
         ]
+    charts |= per_job
     titles = {
         "max_abs_z": "max |z| over base parameters [1]",
         "val_rms_over_noise": "validation torque RMS / sensor noise std, per joint [1]",
@@ -157,32 +159,25 @@ def _record(path: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]
             )
             for c in charts
         ]
-        rec.send_blueprint(
-            rrb.Blueprint(
-                rrb.Horizontal(
-                    rrb.Grid(*views),
-                    rrb.TextDocumentView(origin="/runs/table", name="jobs"),
-                    column_shares=[3, 1],
-                ),
-                collapse_panels=True,
-            )
-        )
+        table = rrb.TextDocumentView(origin="/runs/table", name="jobs")
+        rec.send_blueprint(rrb.Blueprint(rrb.Grid(*views, table), collapse_panels=True))
         for c, bars in charts.items():
-            jobs = list(dict.fromkeys(label.split(": ")[0] for label, _ in bars))
+            jobs = [r["job"] for r in ok]
             threshold = THRESHOLDS.get(c)
             if threshold is not None:
                 rec.log(
-                    f"runs/{c}/{rr.escape_entity_path_part(f'threshold {threshold:g}')}",
+                    f"runs/{c}/threshold_{threshold:g}",
                     rr.BarChart(
                         [threshold],
-                        abscissa=[(len(bars) - 1) / 2.0],
+                        abscissa=[-0.15],  # rerun draws a bar from its abscissa to abscissa + width
                         widths=[float(len(bars))],
                         color=(*ROLE_COLORS["reference"], 70),
                     ),
                     static=True,
                 )
             for i, (label, value) in enumerate(bars):
-                color = palette[jobs.index(label.split(": ")[0]) % len(palette)]
+                owner = next((k for k, job in enumerate(jobs) if label == job or label.startswith(f"{job}_")), 0)
+                color = palette[owner % len(palette)]
                 rec.log(
                     f"runs/{c}/{rr.escape_entity_path_part(label)}",
                     rr.BarChart([value], abscissa=[float(i)], widths=[0.7], color=color),

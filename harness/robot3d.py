@@ -125,7 +125,7 @@ def camera(plant: Plant, q: np.ndarray) -> dict[str, list[float]]:
 
     A planar robot (every hinge axis parallel at the start) is seen square to its plane of motion, from
     slightly above; any other from an oblique corner. The eye stands far enough back that the sphere
-    around everything the robot sweeps fills about two thirds of the view.
+    around everything the robot sweeps fills most of the view.
 
     Returns:
         `position`, `look_target` and `eye_up` (world frame, m), for `rerun.blueprint.EyeControls3D`.
@@ -146,7 +146,7 @@ def camera(plant: Plant, q: np.ndarray) -> dict[str, list[float]]:
     lo, hi = _reach(plant, q)
     centre = 0.5 * (lo + hi)
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.05)
-    eye = centre + view * radius * 2.6
+    eye = centre + view * radius * 2.0
     return {"position": eye.tolist(), "look_target": centre.tolist(), "eye_up": up.tolist()}
 
 
@@ -162,7 +162,7 @@ def log_scene(rec: rr.RecordingStream, plant: Plant, q: np.ndarray, *, entity: s
     rec.log(
         f"{entity}/world_axes",
         rr.Arrows3D(
-            vectors=np.eye(3) * 0.5 * size,
+            vectors=np.eye(3) * 0.3 * size,
             origins=np.zeros((3, 3)),
             colors=[(230, 60, 60), (60, 200, 60), (70, 110, 255)],
             radii=0.006 * size,
