@@ -266,15 +266,37 @@ def shoot(recordings: list[Path], out_dir: Path, *, wait_s: float = 45.0) -> lis
     return [screenshot(Path(r), Path(out_dir) / f"{Path(r).stem}.png", wait_s=wait_s) for r in recordings]
 
 
+def make_recordings(work: Path) -> list[Path]:
+    """One recording of each kind into `work`: a two_link sysid-run, a sysid-diagnose (of the DFKI logs where
+    ../shared has them, else of the run's data) and the sysid-report of a 2-job sweep. Returns the .rrd paths."""
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")])}
+
+    def call(*args: str) -> None:
+        subprocess.run([sys.executable, "-m", *args], cwd=repo, env=env, check=True, stdout=subprocess.DEVNULL)
+
+    run, diag, sweep = work / "run", work / "diagnose", work / "sweep"
+    call("harness.run", "system=two_link", f"hydra.run.dir={run}")
+    # the DFKI arm's real logs where ../shared holds them (something to find), else the run's simulated data
+    data = (
+        ["data=dfki_double_pendulum"] if (repo.parent / "shared" / "data").is_dir() else [f"data.path={run}/data.csv"]
+    )
+    call("harness.diagnose", "system=two_link", *data, f"hydra.run.dir={diag}")
+    call("harness.run", "-m", "system=pendulum,two_link", "record=none", f"hydra.sweep.dir={sweep}")
+    call("harness.report", str(sweep))
+    return [run / "recording.rrd", diag / "diagnosis.rrd", sweep / "report.rrd"]
+
+
 def main(argv: list[str] | None = None) -> int:
-    """`python -m tools.review_shots OUT_DIR REC.rrd ...`."""
+    """`python -m tools.review_shots OUT_DIR [REC.rrd ...]` (no recordings: make one of each kind first)."""
     parser = argparse.ArgumentParser(prog="review-shots", description=__doc__.splitlines()[0])
     parser.add_argument("out_dir", type=Path)
-    parser.add_argument("recordings", type=Path, nargs="+")
-    parser.add_argument("--wait", type=float, default=45.0, help="seconds the viewer gets to load and draw")
+    parser.add_argument("recordings", type=Path, nargs="*")
+    parser.add_argument("--wait", type=float, default=60.0, help="seconds the viewer gets to load and draw")
     args = parser.parse_args(argv)
     try:
-        shots = shoot(args.recordings, args.out_dir, wait_s=args.wait)
+        recordings = args.recordings or make_recordings(args.out_dir / "recordings")
+        shots = shoot(recordings, args.out_dir, wait_s=args.wait)
     except (FileNotFoundError, TimeoutError, RuntimeError) as err:
         print(f"review-shots: {err}", file=sys.stderr)
         return 2
