@@ -6,7 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_diagnose import simulate
 
+import harness.diagnose as diagnose_cli
+from envs.dataset import write_csv
+from envs.effects import HiddenEffect
 from harness.record import ROLE_COLORS
 from harness.run import run
 from tests.conftest import compose_config
@@ -37,3 +41,22 @@ def test_run_recording_renders_in_the_web_viewer(tmp_path: Path) -> None:
     assert str(out / "recording.rrd") in shot.server_log
     for role in ("model", "reference"):
         assert _pixels_near(image, ROLE_COLORS[role]) > 300, f"no {role} curve in the screenshot {shot.png}"
+
+
+def test_diagnosis_recording_renders_in_the_web_viewer(tmp_path: Path) -> None:
+    folder = tmp_path / "data"
+    folder.mkdir()
+    _, train, validation = simulate("pendulum", [HiddenEffect("viscous_friction", "swing", 0.01)], 2, folder)
+    paths = [folder / "train.csv", folder / "validation.csv"]
+    write_csv(train, paths[0])
+    write_csv(validation, paths[1])
+    out = tmp_path / "diagnosis"
+    listed = ",".join(str(p) for p in paths)
+    overrides = ["system=pendulum", f"data.path=[{listed}]", f"output_dir={out}", "diagnose.references=null"]
+    diagnose_cli.run(compose_config(overrides, config_name="diagnose"))
+    shot = screenshot(out / "diagnosis.rrd", tmp_path / "diagnosis.png", wait_s=60.0)
+    image = read_png(shot.png)
+    assert image.reshape(-1, 3).std(axis=0).max() > 20
+    assert str(out / "diagnosis.rrd") in shot.server_log
+    for role in ("nominal", "model"):  # the nominal and calibrated curves and ghosts are drawn
+        assert _pixels_near(image, ROLE_COLORS[role]) > 300, f"no {role} colour in the screenshot {shot.png}"

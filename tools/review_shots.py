@@ -1,13 +1,15 @@
 """Screenshots of rerun recordings as a reader sees them: rerun's web viewer in headless Chromium.
 
-`python -m tools.review_shots OUT_DIR REC.rrd [REC.rrd ...]` serves each recording with
+`python -m tools.review_shots OUT_DIR [REC.rrd ...]` serves each recording (none given: one of each kind,
+made first) with
 `rerun --serve-web`, opens the web viewer in headless Chromium (Debian's `chromium` with SwiftShader:
 software WebGL, no GPU), waits for the viewer to load and draw, and saves `OUT_DIR/<rrd stem>.png`.
 
 Chromium is driven over its DevTools pipe (`--remote-debugging-pipe`: JSON messages over two file
-descriptors), so nothing beyond the standard library is needed; the viewer's WebAssembly compiles in real
-time, which `--virtual-time-budget` alone does not wait for. `make review-shots` makes one recording of
-each kind (sysid-run, sysid-diagnose, sysid-report) and shoots them.
+descriptors), so nothing beyond the standard library is needed, and the page runs `--wait` seconds of real
+time: the viewer's WebAssembly compiles and SwiftShader draws in real time, which `--virtual-time-budget`
+does not wait for (and over the pipe the page is closed once that budget is spent, so it is not set).
+`make review-shots` makes one recording of each kind (sysid-run, sysid-diagnose, sysid-report) and shoots them.
 """
 
 from __future__ import annotations
@@ -89,12 +91,11 @@ class _DevTools:
         os.set_blocking(self._read, False)
         self._buf = b""
         self._id = 0
-        self.console: list[str] = []
 
     def call(
         self, method: str, params: dict[str, Any] | None = None, *, session: str | None = None, timeout_s: float = 60.0
     ) -> dict[str, Any]:
-        """Send one command and wait for its answer (events meanwhile: console messages are kept)."""
+        """Send one command and wait for its answer (events that arrive meanwhile are dropped)."""
         self._id += 1
         msg: dict[str, Any] = {"id": self._id, "method": method, "params": params or {}}
         if session is not None:
@@ -124,7 +125,7 @@ class _DevTools:
             self._buf += chunk
 
     def pump(self, seconds: float) -> None:
-        """Let the page run for `seconds` of real time, keeping its console messages (no command is sent:
+        """Let the page run for `seconds` of real time, draining Chromium's events (no command is sent:
         the viewer's main thread is busy drawing in software and would answer late)."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -139,13 +140,11 @@ class _DevTools:
             *messages, self._buf = self._buf.split(b"\0")
             for raw in messages:
                 self._event(json.loads(raw))
-        self._buf = self._buf
 
     def _event(self, message: dict[str, Any]) -> None:
+        """Print an event to stderr when REVIEW_SHOTS_DEBUG is set (the renderer's crashes show here)."""
         if os.environ.get("REVIEW_SHOTS_DEBUG") and "method" in message:
             print("event", message["method"], str(message.get("params"))[:300], file=sys.stderr)
-        if message.get("method") == "Runtime.consoleAPICalled":
-            self.console.append(" ".join(str(a.get("value", "")) for a in message["params"]["args"]))
 
     def open(self, url: str) -> None:
         # Open the page at its address: a navigation away from about:blank swaps the renderer process and
@@ -173,13 +172,12 @@ class Shot:
     Attributes:
         recording: the .rrd shown.
         png: where the screenshot went.
-        console: the web viewer's console messages while it loaded.
-        server_log: what `rerun --serve-web` printed (it names the file it loaded and the viewer's address).
+        server_log: what `rerun --serve-web` printed (it names the file it loaded and the viewer's address),
+            then Chromium's own messages.
     """
 
     recording: Path
     png: Path
-    console: tuple[str, ...]
     server_log: str
 
 
@@ -203,16 +201,15 @@ def screenshot(
     web, grpc = _free_port(), _free_port()
     log_path = png.with_suffix(".server.log")
     png.parent.mkdir(parents=True, exist_ok=True)
-    log = log_path.open("w")
-    if True:
-        server = subprocess.Popen(
-            [str(rerun), "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            env={**os.environ, "RERUN_ANALYTICS": "0"},
-            start_new_session=True,
-        )
+    log = log_path.open("w")  # rerun's output, then Chromium's
+    server = subprocess.Popen(
+        [str(rerun), "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        env={**os.environ, "RERUN_ANALYTICS": "0"},
+        start_new_session=True,
+    )
     try:
         _wait_for_port(web, server, timeout_s=30.0)
         browser = _DevTools(binary, width, height, stderr=log)
@@ -220,13 +217,12 @@ def screenshot(
             browser.open(f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy&renderer=webgl")
             browser.pump(wait_s)
             png.write_bytes(browser.png())
-            console = tuple(browser.console)
         finally:
             browser.close()
     finally:
         _stop(server)
         log.close()
-    return Shot(recording=Path(rrd), png=png, console=console, server_log=log_path.read_text())
+    return Shot(recording=Path(rrd), png=png, server_log=log_path.read_text())
 
 
 def _stop(proc: subprocess.Popen) -> None:

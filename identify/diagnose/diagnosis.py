@@ -124,7 +124,8 @@ class Diagnosis:
         frictionloss_mapping: per joint, MuJoCo's frictionloss against the fitted Coulomb term.
         calibrated_xml: the calibrated MJCF text.
         notes: anything the caller should know (clipped values, unidentifiable directions).
-        series: validation time series for the recording (not in to_dict).
+        series: validation time series for the recording, one entry per validation record, in the analysis
+            band as the table compares them (see `_validation_series`; not in to_dict).
     """
 
     system: str
@@ -345,7 +346,7 @@ def diagnose(
             if name in sims:
                 models[name]["simulation_error"] = _per_joint(names, sims[name])
         friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
-        series = validation_series(plant, calibrated, ext, va, s_va, preds, window_s)
+        series = _validation_series(plant, calibrated, ext, va, s_va, preds, window_s)
 
     white_nom = whiteness(s_va.residual, floor, 1.0 / va[0].data.dt)
     white_cal = whiteness(s_va.smooth(s_va.tau - preds["calibrated"]), floor, 1.0 / va[0].data.dt)
@@ -540,7 +541,7 @@ def _findings(
     return out
 
 
-def validation_series(
+def _validation_series(
     plant: Plant,
     calibrated: Plant,
     ext: Extension,
