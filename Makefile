@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: run test lint bench clean env
+.PHONY: run test lint bench clean env review-shots
 
 env: $(STAMP)
 
@@ -39,4 +39,9 @@ $(VENV)/.installed-bench: $(STAMP)
 	touch $(VENV)/.installed-bench
 
 clean:
-	rm -rf outputs multirun .pytest_cache .mypy_cache .ruff_cache
+	rm -rf outputs multirun review-shots .pytest_cache .mypy_cache .ruff_cache
+
+# review-shots: one recording of each kind, shown in rerun's web viewer in headless Chromium, saved as PNGs
+# into review-shots/ (needs Debian's chromium: apt-get install -y chromium)
+review-shots: $(STAMP)
+	$(BIN)/python -m tools.review_shots review-shots

@@ -140,7 +140,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     payload["split"] = split.describe()
     payload["repairs"] = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
     payload["config"] = OmegaConf.to_container(cfg, resolve=True)
-    _write_outputs(out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)))
+    dataset = f"{cfg.data.get('name', 'csv')}: {', '.join(p.name for p in paths)}"
+    _write_outputs(out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)), dataset=dataset)
     print(_summary(payload))
     print(f"outputs in {out}")
     return to_jsonable(payload)
@@ -162,14 +163,26 @@ def _check_training_excitation(
 
 
 def _write_outputs(
-    out: Path, plant: Plant, result: Diagnosis, payload: dict[str, Any], mjcf_name: str, *, record: bool
+    out: Path,
+    plant: Plant,
+    result: Diagnosis,
+    payload: dict[str, Any],
+    mjcf_name: str,
+    *,
+    record: bool,
+    dataset: str = "",
 ) -> None:
     """The recording, the calibrated MJCF, then diagnosis.json (its presence means a finished run)."""
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     steps: list[tuple[Path, Callable[[Path], None]]] = []
     if record:
-        steps.append((out / "diagnosis.rrd", lambda p: record_diagnosis(p, plant, result, _findings_markdown(result))))
+        steps.append(
+            (
+                out / "diagnosis.rrd",
+                lambda p: record_diagnosis(p, plant, result, _findings_markdown(result), dataset=dataset),
+            )
+        )
     steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
     steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
     try:

@@ -15,8 +15,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from envs.dataset import atomic_write
 
 __all__ = ["collect", "main", "report_rows", "write_report"]
@@ -94,7 +92,7 @@ def _fmt(v: Any) -> str:
     return "" if v is None else str(v)
 
 
-def write_report(sweep: Path, rows: list[dict[str, Any]]) -> None:
+def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> None:
     """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all."""
     columns = list(dict.fromkeys(k for row in rows for k in row))
     md = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
@@ -107,35 +105,100 @@ def write_report(sweep: Path, rows: list[dict[str, Any]]) -> None:
     writer.writeheader()
     writer.writerows(rows)
     atomic_write(sweep / "report.csv", lambda f: f.write(buf.getvalue()))
-    _record(sweep / "report.rrd", rows)
+    _record(sweep / "report.rrd", rows, records)
 
 
-def _record(path: Path, rows: list[dict[str, Any]]) -> None:
+# Reference lines drawn on the report's charts: the largest |z| a calibrated std allows about once in 370
+# parameters, and the validation RMS a right model reaches within 20 % of the sensor noise.
+THRESHOLDS = {"max_abs_z": 3.0, "val_rms_over_noise": 1.2}
+
+
+def _normalised_rms(record: dict[str, Any]) -> dict[str, float]:
+    """Validation torque RMS / sensor noise std per measured joint of a sysid-run job (none for others)."""
+    p = record.get("payload") or {}
+    if record.get("status") != "ok" or record.get("kind") != "run":
+        return {}
+    rms, noise = p["validation"]["torque_rms"], p["validation"].get("noise_std", {})
+    return {j: float(rms[j]) / float(noise[j]) for j in rms if noise.get(j)}
+
+
+def _record(path: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> None:
+    """report.rrd: one bar chart per headline number, one bar (named in the legend) per job, thresholds drawn."""
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from harness.record import save_recording
+    from harness.record import ROLE_COLORS, save_recording
 
     ok = [r for r in rows if r["status"] == "ok"]
     numeric = [c for c in dict.fromkeys(k for r in ok for k in r) if all(isinstance(r.get(c), float) for r in ok)]
+    normalised = {r["job"]: _normalised_rms(r) for r in (records or [])}
+    per_job = {c: [(r["job"], float(r[c])) for r in ok] for c in numeric if not c.startswith("val_rms_")}
+    charts: dict[str, list[tuple[str, float]]] = {}
+    if "max_abs_z" in per_job:  # the key metrics first
+        charts["max_abs_z"] = per_job.pop("max_abs_z")
+    if any(normalised.values()):
+        charts["val_rms_over_noise"] = [
+            (f"{job}_{joint}", value) for job, per_joint in normalised.items() for joint, value in per_joint.items()
+        ]
+    charts |= per_job
+    titles = {
+        "max_abs_z": "max |z| over base parameters [1]",
+        "val_rms_over_noise": "validation torque RMS / sensor noise std, per joint [1]",
+        "cond_XtX": "cond(XᵀX) [1]",
+        "cond_W_colnorm": "cond(W), column-normalised [1]",
+        "time_s": "wall time [s]",
+    }
+    palette = [(86, 180, 233), (230, 159, 0), (0, 158, 115), (240, 228, 66), (0, 114, 178), (213, 94, 0)]
 
     def fill(rec: rr.RecordingStream) -> None:
-        rec.send_blueprint(
-            rrb.Blueprint(
-                rrb.Grid(
-                    *[rrb.BarChartView(origin=f"/runs/{c}", name=c) for c in numeric],
-                    rrb.TextDocumentView(origin="/runs/table", name="jobs"),
-                )
+        views = [
+            rrb.BarChartView(
+                origin=f"/runs/{c}",
+                name=titles.get(c, _title(c)),
+                plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True),
             )
-        )
-        for c in numeric:
-            rec.log(f"runs/{c}", rr.BarChart(np.array([r[c] for r in ok], dtype=float)), static=True)
-        legend = "\n".join(f"{i}. `{r['job']}` {r['overrides']}" for i, r in enumerate(ok))
+            for c in charts
+        ]
+        table = rrb.TextDocumentView(origin="/runs/table", name="jobs")
+        rec.send_blueprint(rrb.Blueprint(rrb.Grid(*views, table), collapse_panels=True))
+        for c, bars in charts.items():
+            jobs = [r["job"] for r in ok]
+            threshold = THRESHOLDS.get(c)
+            if threshold is not None:
+                rec.log(
+                    f"runs/{c}/threshold_{threshold:g}",
+                    rr.BarChart(
+                        [threshold],
+                        abscissa=[-0.15],  # rerun draws a bar from its abscissa to abscissa + width
+                        widths=[float(len(bars))],
+                        color=(*ROLE_COLORS["reference"], 70),
+                    ),
+                    static=True,
+                )
+            for i, (label, value) in enumerate(bars):
+                owner = next((k for k, job in enumerate(jobs) if label == job or label.startswith(f"{job}_")), 0)
+                color = palette[owner % len(palette)]
+                rec.log(
+                    f"runs/{c}/{rr.escape_entity_path_part(label)}",
+                    rr.BarChart([value], abscissa=[float(i)], widths=[0.7], color=color),
+                    static=True,
+                )
+        legend = "\n".join(f"- `{r['job']}`: {r['overrides'] or '(defaults)'}" for r in ok)
         failed = "\n".join(f"- `{r['job']}` {r['overrides']}: {r['error']}" for r in rows if r["status"] != "ok")
-        text = f"Bars are the successful jobs in this order:\n\n{legend}\n\nFailed:\n\n{failed or '(none)'}"
+        marks = ", ".join(f"{k} = {v:g}" for k, v in THRESHOLDS.items())
+        text = (
+            f"**{len(rows)} jobs, {len(ok)} ok, {len(rows) - len(ok)} failed.** Each bar is one job, named in "
+            f"the chart's legend; shaded: the threshold ({marks}).\n\nJobs:\n\n{legend}\n\n"
+            f"Failed:\n\n{failed or '(none)'}"
+        )
         rec.log("runs/table", rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     save_recording(path, "sysid-report", fill)
+
+
+def _title(column: str) -> str:
+    unit = " [N m]" if "rms" in column else ""
+    return column.replace("_", " ") + unit
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,11 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("sweep", type=Path, help="a Hydra multirun folder, e.g. multirun/2026-11-23_12-00-00")
     args = parser.parse_args(argv)
     try:
-        rows = report_rows(collect(args.sweep))
+        records = collect(args.sweep)
+        rows = report_rows(records)
     except FileNotFoundError as err:
         print(f"sysid-report: {err}", file=sys.stderr)
         return 2
-    write_report(args.sweep, rows)
+    write_report(args.sweep, rows, records)
     print((args.sweep / "report.md").read_text())
     return 0
 

@@ -43,3 +43,37 @@ def rrd_has_blueprint(path: Path) -> bool:
     from rerun.chunk import RrdReader
 
     return bool(RrdReader(str(path)).blueprints())
+
+
+def _components(store) -> dict[str, dict[str, list]]:  # type: ignore[no-untyped-def]
+    """Entity path -> component -> every value logged (in chunk order), for one store of an .rrd."""
+    out: dict[str, dict[str, list]] = {}
+    for chunk in store.stream().to_chunks():
+        batch = chunk.to_record_batch()
+        entity = out.setdefault(chunk.entity_path, {})
+        for field in batch.schema:
+            if field.metadata and field.metadata.get(b"rerun:kind") == b"data":
+                entity.setdefault(field.name, []).extend(batch.column(field.name).to_pylist())
+    return out
+
+
+def rrd_components(path: Path) -> dict[str, dict[str, list]]:
+    """The recording's logged data: entity path -> component (`Scalars:scalars`, `SeriesLines:colors`, ...)
+    -> the values of every row."""
+    from rerun.chunk import RrdReader
+
+    return _components(RrdReader(str(path)).store())
+
+
+def rrd_blueprint(path: Path) -> dict[str, dict[str, list]]:
+    """The recording's blueprint as entity path (`/view/<id>`, `/container/<id>`, `/blueprint_panel`, ...) ->
+    component (`ViewBlueprint:display_name`, `EyeControls3D:position`, ...) -> values."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    return _components(reader.store(store=reader.blueprints()[0]))
+
+
+def rgba(packed: int) -> tuple[int, int, int, int]:
+    """rerun's packed 0xRRGGBBAA colour as (r, g, b, a)."""
+    return ((packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255, packed & 255)

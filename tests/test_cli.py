@@ -53,9 +53,9 @@ def test_console_script_writes_the_contracted_outputs(tmp_path: Path) -> None:
     rows = rrd_rows(out / "recording.rrd")
     n = len((out / "data.csv").read_text().splitlines()) - 1
     assert 0.8 * n < rows["/joints/swing/tau/measured"] <= n  # filter edges trimmed
-    assert rows["/joints/swing/tau/predicted"] == rows["/joints/swing/tau/measured"]
+    assert rows["/joints/swing/tau/model"] == rows["/joints/swing/tau/measured"]
     assert rows["/parameters/table"] == 1
-    assert rows["/robot/pendulum"] > 10  # the 3D replay: one pose per replayed sample
+    assert rows["/robot/measured/pendulum"] > 10  # the 3D replay: one pose per replayed sample
     assert rrd_has_blueprint(out / "recording.rrd")
 
 

@@ -55,10 +55,11 @@ def test_diagnose_writes_the_three_files(csv_files: list[Path], tmp_path: Path) 
     calibrated = load_plant(tmp_path / "pendulum_calibrated.xml")
     assert calibrated.damping[0] == pytest.approx(0.01, rel=0.1)
     rows = rrd_rows(tmp_path / "diagnosis.rrd")
-    assert rows["/joints/swing/tau/measured"] > 100
-    assert rows["/joints/swing/q/simulated_calibrated"] > 100
+    root = "/validation/0_validation"  # one tab per validation record, keyed by its file
+    assert rows[f"{root}/joints/swing/tau/measured"] > 100
+    assert rows[f"{root}/joints/swing/q/simulated_calibrated"] > 100
     assert "/findings" in rows
-    assert rows["/robot/pendulum"] > 10  # the measured motion replayed in 3D
+    assert rows[f"{root}/robot/measured/pendulum"] > 10  # the measured motion replayed in 3D
     assert rrd_has_blueprint(tmp_path / "diagnosis.rrd")
 
 

@@ -35,7 +35,7 @@ def test_two_job_sweep_and_its_report(tmp_path: Path) -> None:
         assert float(row["val_rms_swing"]) == results["validation"]["torque_rms"]["swing"]
         assert f"seed={results['seed']}" in row["overrides"]
     assert "2 jobs, 2 ok, 0 failed" in (sweep / "report.md").read_text()
-    assert rrd_rows(sweep / "report.rrd")["/runs/cond_XtX"] == 1
+    assert all(rrd_rows(sweep / "report.rrd")[f"/runs/cond_XtX/{job}"] == 1 for job in table)  # a bar per job
     assert rrd_has_blueprint(sweep / "report.rrd")
 
 

@@ -124,7 +124,8 @@ class Diagnosis:
         frictionloss_mapping: per joint, MuJoCo's frictionloss against the fitted Coulomb term.
         calibrated_xml: the calibrated MJCF text.
         notes: anything the caller should know (clipped values, unidentifiable directions).
-        series: validation time series for the recording (not in to_dict).
+        series: validation time series for the recording, one entry per validation record, in the analysis
+            band as the table compares them (see `_validation_series`; not in to_dict).
     """
 
     system: str
@@ -345,7 +346,7 @@ def diagnose(
             if name in sims:
                 models[name]["simulation_error"] = _per_joint(names, sims[name])
         friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
-        series = _series(plant, calibrated, ext, va[0], preds, window_s)
+        series = _validation_series(plant, calibrated, ext, va, s_va, preds, window_s)
 
     white_nom = whiteness(s_va.residual, floor, 1.0 / va[0].data.dt)
     white_cal = whiteness(s_va.smooth(s_va.tau - preds["calibrated"]), floor, 1.0 / va[0].data.dt)
@@ -540,22 +541,48 @@ def _findings(
     return out
 
 
-def _series(
-    plant: Plant, calibrated: Plant, ext: Extension, rec: _Record, preds: dict[str, np.ndarray], window_s: float
+def _validation_series(
+    plant: Plant,
+    calibrated: Plant,
+    ext: Extension,
+    records: list[_Record],
+    stacked: Signals,
+    preds: dict[str, np.ndarray],
+    window_s: float,
 ) -> dict[str, Any]:
-    """Time series of the first validation record for the recording."""
-    n = rec.signals.n_samples
-    rows = _rows(rec)
-    t_sim, q_nom = _sim_series(plant, rec, rec.data.tau, window_s)
-    _, q_cal = _sim_series(calibrated, rec, applied_from_measured(ext, rec.data.time, rec.data.tau), window_s)
-    return {
-        "time": rec.signals.time,
-        "joint_names": plant.joint_names,
-        "tau_measured": rec.signals.tau,
-        "tau_nominal": preds["nominal"][:n],
-        "tau_calibrated": preds["calibrated"][:n],
-        "q_measured": rec.states.q[rows],
-        "sim_time": t_sim,
-        "q_nominal": q_nom,
-        "q_calibrated": q_cal,
-    }
+    """Time series of every validation record for the recording, exactly as the table compares them.
+
+    The torques are those `models[...]["torque_rms"]` is computed from: measured and model torque, both
+    low-passed in the analysis band by `stacked.smooth` (record by record), so that the RMS of a plotted
+    residual over all records is the table's number.
+
+    Returns:
+        `joint_names`, `band_hz`, and `records`: per validation record `source`, `time` (N,) [s],
+        `tau_measured`, `tau_nominal`, `tau_calibrated` (N, nv) in the band [N m], `q_time` (M,) and
+        `q_measured` (M, nv) [rad], `sim_time` (K,) and `q_nominal`, `q_calibrated` (K, nv) [rad] (the
+        re-started simulations).
+    """
+    tau = stacked.smooth(stacked.tau)
+    nominal = stacked.smooth(preds["nominal"])
+    model = stacked.smooth(preds["calibrated"])
+    out = []
+    for i, rec in enumerate(records):
+        rows = _rows(rec)
+        mine = stacked.record == i
+        t_sim, q_nom = _sim_series(plant, rec, rec.data.tau, window_s)
+        _, q_cal = _sim_series(calibrated, rec, applied_from_measured(ext, rec.data.time, rec.data.tau), window_s)
+        out.append(
+            {
+                "source": rec.data.source,
+                "time": stacked.time[mine],
+                "tau_measured": tau[mine],
+                "tau_nominal": nominal[mine],
+                "tau_calibrated": model[mine],
+                "q_time": rec.data.time[rows],
+                "q_measured": rec.states.q[rows],
+                "sim_time": t_sim,
+                "q_nominal": q_nom,
+                "q_calibrated": q_cal,
+            }
+        )
+    return {"joint_names": plant.joint_names, "band_hz": stacked.band_hz, "records": out}
