@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.rundir import terminate_as_exit
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 RUN, DIAGNOSE, REPORT = "harness.run", "harness.diagnose", "harness.report"
@@ -446,7 +448,7 @@ def _judge(case: Case, d: Path, base: Path) -> dict:
 
 
 def main() -> None:
-    with tempfile.TemporaryDirectory(prefix="sysid_trial_") as tmp:
+    with terminate_as_exit(), tempfile.TemporaryDirectory(prefix="sysid_trial_") as tmp:  # SIGTERM: unmount, remove
         root = Path(tmp)
         base = root / "base"
         proc = _py(RUN, *FAST, f"hydra.run.dir={base}")
