@@ -115,15 +115,40 @@ def write_csv(dataset: Dataset, path: Path) -> None:
     atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=header, comments="", fmt="%.10g"))
 
 
-def atomic_write(path: Path, write) -> None:  # type: ignore[no-untyped-def]
-    """Write through `write(file)` into a temporary file beside `path`, then rename it into place."""
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux allows (os.umask sets it to read it)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def atomic_write(path: Path, write, *, binary: bool = False) -> None:  # type: ignore[no-untyped-def]
+    """Write through `write(file)` into a temporary file beside `path`, then rename it into place.
+
+    The file gets the permissions any new file gets under the process's umask (0644 under the usual 022), not
+    the temporary file's private 0600: others on a shared file system can read the results.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w") as f:
+        os.fchmod(fd, 0o666 & ~_umask())
+        with os.fdopen(fd, "wb" if binary else "w") as f:
             write(f)
+            f.flush()
+            os.fsync(f.fileno())  # the data reach the disk before the name does (a crash leaves old or new)
         os.replace(tmp, path)
+    except OSError as err:
+        Path(tmp).unlink(missing_ok=True)
+        if err.filename is None and err.errno is not None:  # a write error names no file: name ours
+            raise OSError(err.errno, err.strerror, str(path)) from err
+        raise
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -31,6 +31,7 @@ from typing import Any
 import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import median_filter
 
 from dynamics.errors import DataError
 from dynamics.plant import Plant
@@ -46,6 +47,10 @@ _GLITCH_MAX_RUN = 5  # a glitch is at most 5 consecutive samples off track
 _GLITCH_MAX_FRACTION = 0.01  # more glitch samples than 1 % of the rows: the sensor is not trusted
 _MIN_JUMP = 0.02  # [rad] (or [m]) a step smaller than this is never called a jump
 _DEGREE = np.pi / 180.0
+_MIN_SAMPLE_RATE_HZ = 5.0  # slower sampling is a time column in other units (ms, us) or not joint data
+_MAX_SAMPLE_RATE_HZ = 1e5
+_RATE_WINDOW = 2 * _GLITCH_MAX_RUN + 1  # steps in the running median that bounds the speed without dq
+_SNIFF_BYTES = 1 << 16
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
 
 
@@ -100,7 +105,8 @@ def read_measured(
         resample: interpolate irregular sampling onto a uniform grid at the median step (reported); False
             refuses it.
         max_speed: fastest physically possible joint speed [rad/s]; None estimates a bound from the data
-            (3 x the 99.9th percentile of |dq|, or of the angle's own rate when dq is absent).
+            (3 x the 99.9th percentile of |dq|, or of the angle's own rate after a running median over 11
+            steps when dq is absent, which glitches cannot move).
         min_samples: fewest rows accepted, before and after repairs.
 
     Returns:
@@ -116,10 +122,10 @@ def read_measured(
     src = str(path)
     header, table = _read_table(path)
     sources, ignored = _resolve_columns(plant, header, columns, src)
-    values = {name: c.scale * table[:, c.index] + c.offset for name, c in sources.items()}
+    values = {name: _scaled(table[:, c.index], c) for name, c in sources.items()}
     labels = {name: f"column '{c.name}'" + (f" ({name})" if c.name != name else "") for name, c in sources.items()}
     _check_finite(values, labels, src)
-    t = values["time"]
+    t = np.ascontiguousarray(values["time"])
     _check_time(t, labels["time"], src)
     _check_length(len(t), min_samples, src, "rows")
 
@@ -132,6 +138,8 @@ def read_measured(
         tau[:, j] = values[f"tau_{names[j]}"]
     arrays["tau"] = tau
     arrays["tau_cmd"] = _optional_block(values, [f"tau_cmd_{names[j]}" for j in act], act, plant.nv, src)
+    rows_read = len(table)
+    del values, table  # the blocks above hold copies: the table's memory can go
     _check_angle_units(plant, t, arrays, labels, src)
 
     rows = np.arange(len(t))
@@ -179,7 +187,7 @@ def read_measured(
         "repairs": tuple(repairs),
         "columns": {name: _describe(c) for name, c in sources.items()},
         "ignored_columns": tuple(ignored),
-        "rows_read": len(table),
+        "rows_read": rows_read,
         "sample_rate_hz": float(1.0 / np.median(np.diff(t))),
     }
     q_out, tau_out = arrays["q"], arrays["tau"]
@@ -243,17 +251,55 @@ def read_many(
     return datasets
 
 
-def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
-    if not path.is_file():
+def _check_readable(path: Path) -> None:
+    """A regular, readable text file: the message says what it is instead (folder, binary, not UTF-8)."""
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not a file; give the CSV file inside it")
+    if not path.exists():
         raise DataError(f"{path}: no such file")
-    with path.open(newline="", encoding="utf-8-sig") as f:
-        header = [h.strip() for h in next(csv.reader(f), [])]
+    try:
+        with path.open("rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except PermissionError:
+        raise DataError(f"{path}: cannot be read: permission denied") from None
+    except OSError as err:
+        raise DataError(f"{path}: cannot be read: {err.strerror or err}") from None
+    nul = head.find(b"\0")
+    if nul >= 0:
+        line = head[:nul].count(b"\n") + 1
+        raise DataError(f"{path}: a binary file (a NUL byte at byte {nul}, line {line}), not CSV text")
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        if len(head) < _SNIFF_BYTES or err.start < len(head) - 4:  # not a character cut by the sniffed block
+            raise _not_utf8(path, head, err.start) from None
+
+
+def _not_utf8(path: Path, data: bytes, at: int) -> DataError:
+    line = data[:at].count(b"\n") + 1
+    return DataError(
+        f"{path}: not UTF-8 text (byte 0x{data[at]:02x} at byte {at}, line {line}); save the file as UTF-8 (or "
+        "plain ASCII) CSV"
+    )
+
+
+def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
+    _check_readable(path)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            header = [h.strip() for h in next(csv.reader(f), [])]
+    except (UnicodeDecodeError, csv.Error) as err:
+        raise DataError(f"{path}: the header row (line 1) cannot be read as CSV text: {err}") from None
     if not header or header == [""]:
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # an empty body is reported below, not warned about
             table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8-sig", comments=None)
+    except UnicodeDecodeError as err:
+        raise DataError(
+            f"{path}: not UTF-8 text ({err.reason} at byte {err.start} of a block): save it as UTF-8"
+        ) from None
     except ValueError as err:
         _locate_bad_cell(path, header)
         raise DataError(f"{path}: cannot read the rows as numbers: {err}") from err
@@ -338,6 +384,13 @@ def _resolve_columns(
     return out, ignored
 
 
+def _scaled(x: np.ndarray, c: _Column) -> np.ndarray:
+    """ours = scale * file + offset; a view of the table (no copy) when there is nothing to convert."""
+    if c.scale == 1.0 and c.offset == 0.0:
+        return x
+    return c.scale * x + c.offset
+
+
 def _describe(c: _Column) -> str:
     scaled = c.name if c.scale == 1.0 else f"{c.scale:.9g} * {c.name}"
     return scaled if c.offset == 0.0 else f"{scaled} + {c.offset:.9g}"
@@ -362,6 +415,7 @@ def _check_finite(values: dict[str, np.ndarray], labels: dict[str, str], src: st
 
 def _check_time(t: np.ndarray, label: str, src: str) -> None:
     steps = np.diff(t)
+    _check_time_unit(float(np.median(steps)), label, src)
     back = np.flatnonzero(steps < 0)
     same = np.flatnonzero(steps == 0)
     if back.size and (not same.size or back[0] < same[0]):
@@ -376,6 +430,24 @@ def _check_time(t: np.ndarray, label: str, src: str) -> None:
             f"{src}: {label} repeats {t[k]:.9g} s at rows {k - 1} and {k} (lines {k + 1} and {k + 2}); "
             f"time must be strictly increasing ({same.size} duplicate time stamp(s) in all)"
         )
+
+
+def _check_time_unit(step: float, label: str, src: str) -> None:
+    """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is."""
+    if not step > 0 or 1.0 / step >= _MIN_SAMPLE_RATE_HZ:
+        return
+    guesses = [(unit, f) for unit, f in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))]
+    likely = [(unit, f) for unit, f in guesses if _MIN_SAMPLE_RATE_HZ <= 1.0 / (step * f) <= _MAX_SAMPLE_RATE_HZ]
+    hint = (
+        f": time looks like {likely[0][0]} ({1.0 / (step * likely[0][1]):.4g} Hz then); the harness expects "
+        f"seconds: map it with {{column: ..., scale: {likely[0][1]:g}}} in data.columns.time"
+        if likely
+        else "; the harness expects time in seconds"
+    )
+    raise DataError(
+        f"{src}: {label} steps by a median {step:.6g} per row, {1.0 / step:.4g} Hz sampling if in seconds, "
+        f"slower than any joint log ({_MIN_SAMPLE_RATE_HZ:g} Hz at least){hint}"
+    )
 
 
 def _check_length(n: int, min_samples: int, src: str, what: str) -> None:
@@ -493,7 +565,12 @@ def _repair_joint(
     elif v is not None:
         speed = 3.0 * float(np.percentile(np.abs(v), 99.9))
     else:
-        speed = 3.0 * float(np.percentile(np.abs(s) / dt_eff, 99.0))
+        # the angle's own rate after a running median over _RATE_WINDOW steps: a glitch of up to
+        # _GLITCH_MAX_RUN samples moves two steps of a window, which cannot move its median, so the glitches
+        # cannot set the bound that finds them (a percentile of the raw steps could: 1 % of glitch rows is 2 %
+        # of the steps, and the 99th percentile was then a glitch's)
+        rate = median_filter(np.abs(s) / dt_eff, size=min(_RATE_WINDOW, len(s)), mode="nearest")
+        speed = 3.0 * float(np.percentile(rate, 99.9))
     d2 = np.diff(x, 2)
     noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if n > 2 else 0.0
     floor = max(_MIN_JUMP, 10.0 * noise)

@@ -8,6 +8,8 @@ finished, and a failure while writing removes what was written: a run directory 
 
 from __future__ import annotations
 
+import sys
+import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -25,6 +27,8 @@ from envs.measured import read_many
 from envs.split import split_train_validation
 from harness.record import record_diagnosis
 from harness.results import run_job, to_jsonable, write_json
+from harness.rundir import RunFolder, RunFolderError, check_output_override, claim
+from harness.validate import ConfigError, check_command_line, validate_diagnose_config
 from identify.derivatives import derive_states
 from identify.diagnose import (
     CANDIDATE_EFFECTS,
@@ -85,15 +89,29 @@ def _band_hz(cfg: DictConfig) -> float | None:
 
 
 def run(cfg: DictConfig) -> dict[str, Any]:
-    """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content."""
+    """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content.
+
+    The config is checked first (`harness.validate`), then the run folder is claimed
+    (`harness.rundir.claim`: writable, not in use, no finished diagnosis unless `overwrite=true`).
+    """
+    validate_diagnose_config(cfg)
     opts = cfg.diagnose
     unknown = [e for e in opts.effects if e not in CANDIDATE_EFFECTS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
-    out = _output_dir(cfg)
     plant = load_plant(cfg.system.mjcf)
+    outputs = ("diagnosis.rrd", f"{plant.name}_calibrated.xml", "diagnosis.json")
+    with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
+        return _run(cfg, plant, folder)
+
+
+def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
+    opts = cfg.diagnose
+    out = folder.path
     paths = _paths(cfg)
     columns = OmegaConf.to_container(cfg.data.columns) if cfg.data.get("columns") is not None else None
+    stage = _stages()
+    stage(f"reading {len(paths)} file(s)")
     datasets = read_many(
         paths,
         plant,
@@ -115,6 +133,10 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     )
     if references and plant.nv != 2:
         references = {}
+    stage(
+        f"diagnosing {sum(d.n_samples for d in split.train)} training and "
+        f"{sum(d.n_samples for d in split.validation)} validation rows"
+    )
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
     if "rigid_body" in opts.effects:
         _check_training_excitation(
@@ -140,11 +162,24 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     payload["split"] = split.describe()
     payload["repairs"] = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
     payload["config"] = OmegaConf.to_container(cfg, resolve=True)
+    stage("writing the outputs")
+    folder.retire()
     dataset = f"{cfg.data.get('name', 'csv')}: {', '.join(p.name for p in paths)}"
     _write_outputs(out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)), dataset=dataset)
+    stage("done")
     print(_summary(payload))
     print(f"outputs in {out}")
     return to_jsonable(payload)
+
+
+def _stages() -> Callable[[str], None]:
+    """Progress lines on stderr: each stage as it starts, with the time since the run began."""
+    start = time.perf_counter()
+
+    def stage(message: str) -> None:
+        print(f"[sysid-diagnose] {time.perf_counter() - start:6.1f} s  {message}", file=sys.stderr, flush=True)
+
+    return stage
 
 
 def _check_training_excitation(
@@ -173,7 +208,6 @@ def _write_outputs(
     dataset: str = "",
 ) -> None:
     """The recording, the calibrated MJCF, then diagnosis.json (its presence means a finished run)."""
-    out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     steps: list[tuple[Path, Callable[[Path], None]]] = []
     if record:
@@ -220,9 +254,19 @@ def _summary(payload: dict[str, Any]) -> str:
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="diagnose", version_base=None)
-def main(cfg: DictConfig) -> None:
-    """Console entry point `sysid-diagnose`."""
+def _hydra_main(cfg: DictConfig) -> None:
     run_job(run, cfg)
+
+
+def main() -> None:
+    """Console entry point `sysid-diagnose`: config-group values are checked before Hydra starts."""
+    try:
+        check_command_line(sys.argv[1:], CONF_DIR, "diagnose")
+        check_output_override(sys.argv[1:], ("diagnosis.json", "diagnosis.rrd"))
+    except (ConfigError, RunFolderError) as err:
+        print(f"sysid-diagnose: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    _hydra_main()
 
 
 if __name__ == "__main__":

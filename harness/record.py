@@ -10,7 +10,6 @@ Only this module (and the other harness entry points) import rerun; the numerica
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from dynamics.plant import Plant
+from envs.dataset import atomic_write
 from harness.robot3d import camera, log_robot, log_scene
 
 __all__ = [
@@ -46,21 +46,21 @@ _WIDTH = {"measured": 2.5, "nominal": 1.5, "model": 1.5, "reference": 1.0}
 _GHOST_ALPHA = 110
 
 
+FLUSH_TIMEOUT_S = 120.0  # the longest wait for rerun's encoder to hand over a recording's bytes
+
+
 def save_recording(path: Path, app_id: str, fill: Callable[[rr.RecordingStream], None]) -> None:
-    """Create a recording, let `fill` log into it, and move the finished file to `path` (never half-written)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
+    """Create a recording, let `fill` log into it, and write the finished file to `path` (never half-written).
+
+    The recording is encoded into memory and written by `atomic_write`, not by rerun's file sink: on a full
+    disk that sink's flush waits forever (and so does `disconnect`), while a plain write fails at once with
+    `OSError` (ENOSPC), and the wait for the encoder is bounded by `FLUSH_TIMEOUT_S`.
+    """
     rec = rr.RecordingStream(app_id)
-    rec.save(str(tmp))
-    try:
-        fill(rec)
-        rec.flush()
-        rec.disconnect()
-        os.replace(tmp, path)
-    except BaseException:
-        rec.disconnect()
-        tmp.unlink(missing_ok=True)
-        raise
+    stream = rr.binary_stream(recording=rec)
+    fill(rec)
+    data = stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S)
+    atomic_write(Path(path), lambda f: f.write(data or b""), binary=True)
 
 
 def log_joint_series(rec: rr.RecordingStream, entity: str, time: np.ndarray, values: np.ndarray) -> None:

@@ -40,16 +40,42 @@ def collect(sweep: Path) -> list[dict[str, Any]]:
         record: dict[str, Any] = {"job": str(job.relative_to(sweep)) or ".", "overrides": _overrides(job)}
         for name, kind in (("results.json", "run"), ("diagnosis.json", "diagnose")):
             if (job / name).is_file():
-                record.update(kind=kind, status="ok", payload=json.loads((job / name).read_text()))
+                try:
+                    payload = _read_json(job / name)
+                except ValueError as err:
+                    record.update(kind=kind, status="failed", error=str(err))
+                    break
+                if isinstance(payload.get("overrides"), list):  # the run's own, whatever .hydra/ says now
+                    record["overrides"] = " ".join(str(o) for o in payload["overrides"])
+                record.update(kind=kind, status="ok", payload=payload)
                 break
         else:
-            failure = job / "failure.json"
-            error = json.loads(failure.read_text())["error"] if failure.is_file() else "no output (still running?)"
-            record.update(kind="?", status="failed", error=error)
+            record.update(kind="?", status="failed", error=_failure(job))
         out.append(record)
     if not out:
         raise FileNotFoundError(f"{sweep}: no job folders (with .hydra/, results.json or diagnosis.json) below it")
     return out
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    """A job file's JSON object; ValueError naming the file when it is unreadable, corrupt or not an object."""
+    try:
+        payload = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path}: unreadable or corrupt ({type(err).__name__}: {err})") from None
+    if not isinstance(payload, dict):
+        raise ValueError(f"{path}: corrupt (a JSON {type(payload).__name__}, not an object)")
+    return payload
+
+
+def _failure(job: Path) -> str:
+    failure = job / "failure.json"
+    if not failure.is_file():
+        return "no output (still running, or killed before it could record why)"
+    try:
+        return str(_read_json(failure)["error"])
+    except (ValueError, KeyError) as err:
+        return f"failed; its failure.json is unreadable: {err}"
 
 
 def report_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -60,30 +86,43 @@ def report_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
         p: dict[str, Any] = r.get("payload") or {}
         if r["status"] != "ok":
             row["error"] = r["error"]
-        elif r["kind"] == "run":
-            row.update(
-                system=p["system"],
-                estimator=p.get("estimator"),
-                excitation=p["excitation"]["name"],
-                harmonics=p["excitation"]["harmonics"],
-                cond_XtX=p["excitation"]["cond_XtX"],
-                cond_W_colnorm=p["excitation"]["cond_W_colnorm"],
-                limits_ok=p["excitation"]["limits_ok"],
-                max_abs_z=max(abs(b["z"]) for b in p["base_parameters"] if b.get("z") is not None),
-                **{f"val_rms_{j}": v for j, v in p["validation"]["torque_rms"].items()},
-                time_s=sum(p["timing_s"].values()),
-            )
-        else:
-            findings = p.get("findings", [])
-            row.update(
-                system=p["system"],
-                verdict=p["verdict"],
-                first_finding=findings[0]["effect"] if findings else "",
-                **{f"baseline_rms_{j}": v for j, v in p["baseline"]["torque_rms"].items()},
-                **{f"extended_rms_{j}": v for j, v in p.get("extended", {}).get("torque_rms", {}).items()},
-            )
+            rows.append(row)
+            continue
+        try:
+            row.update(_headline(r["kind"], p))
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            file = "results.json" if r["kind"] == "run" else "diagnosis.json"
+            row.update(status="failed", error=f"{r['job']}/{file}: incomplete or corrupt ({type(err).__name__}: {err})")
         rows.append(row)
     return rows
+
+
+def _headline(kind: str, p: dict[str, Any]) -> dict[str, Any]:
+    """The headline numbers of one job's output."""
+    row: dict[str, Any] = {}
+    if kind == "run":
+        row.update(
+            system=p["system"],
+            estimator=p.get("estimator"),
+            excitation=p["excitation"]["name"],
+            harmonics=p["excitation"]["harmonics"],
+            cond_XtX=p["excitation"]["cond_XtX"],
+            cond_W_colnorm=p["excitation"]["cond_W_colnorm"],
+            limits_ok=p["excitation"]["limits_ok"],
+            max_abs_z=max(abs(b["z"]) for b in p["base_parameters"] if b.get("z") is not None),
+            **{f"val_rms_{j}": v for j, v in p["validation"]["torque_rms"].items()},
+            time_s=sum(p["timing_s"].values()),
+        )
+    else:
+        findings = p.get("findings", [])
+        row.update(
+            system=p["system"],
+            verdict=p["verdict"],
+            first_finding=findings[0]["effect"] if findings else "",
+            **{f"baseline_rms_{j}": v for j, v in p["baseline"]["torque_rms"].items()},
+            **{f"extended_rms_{j}": v for j, v in p.get("extended", {}).get("torque_rms", {}).items()},
+        )
+    return row
 
 
 def _fmt(v: Any) -> str:
@@ -212,8 +251,15 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as err:
         print(f"sysid-report: {err}", file=sys.stderr)
         return 2
-    write_report(args.sweep, rows, records)
+    try:
+        write_report(args.sweep, rows, records)
+    except OSError as err:
+        print(f"sysid-report: error: cannot write the report into {args.sweep}: {err.strerror or err}", file=sys.stderr)
+        return 2
     print((args.sweep / "report.md").read_text())
+    for row in rows:
+        if row["status"] != "ok":
+            print(f"sysid-report: job {row['job']} failed: {row['error']}", file=sys.stderr)
     return 0
 
 

@@ -1,9 +1,12 @@
-"""Writing results: atomic JSON and the terminal summary table."""
+"""Writing results (atomic JSON, the terminal summary table) and running one job with its failure record."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
+import signal
 import sys
 import traceback
 from collections.abc import Callable
@@ -11,10 +14,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from omegaconf.errors import OmegaConfBaseException
 
 from envs.dataset import atomic_write
+from harness.rundir import terminate_as_exit
 
-__all__ = ["run_job", "summary_table", "to_jsonable", "write_json"]
+__all__ = [
+    "USER_ERRORS",
+    "describe_failure",
+    "one_line",
+    "record_failure",
+    "run_job",
+    "summary_table",
+    "to_jsonable",
+    "write_json",
+]
 
 
 def to_jsonable(value: Any) -> Any:
@@ -67,28 +81,86 @@ def summary_table(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, OmegaConfBaseException)
+"""Errors that come from the input or the machine (a config value, a file, the disk), not from a bug: one line
+on stderr and exit status 2, no traceback. Any other exception is a bug and keeps its traceback."""
+
+_RESULT_FILES = ("results.json", "diagnosis.json")
+
+
+def one_line(err: BaseException) -> str:
+    """The error as one line: its message's lines joined (a multi-file data error lists each file)."""
+    text = "; ".join(line.strip() for line in str(err).splitlines() if line.strip())
+    if isinstance(err, OSError) and err.filename is not None:
+        text = f"{err.filename}: {err.strerror or text}"
+    return text or type(err).__name__
+
+
+def describe_failure(err: BaseException) -> str:
+    """What failed, for failure.json and the log: SIGTERM, an interrupt, or the exception's one line."""
+    if isinstance(err, SystemExit) and isinstance(err.code, int) and err.code > 128:
+        return f"terminated by {signal.Signals(err.code - 128).name}"
+    if isinstance(err, KeyboardInterrupt):
+        return "interrupted (Ctrl-C)"
+    return f"{type(err).__name__}: {one_line(err)}"
+
+
+def _log_to_files(message: str) -> None:
+    """Log `message` to the job's log files only (Hydra's `<job>.log`): the terminal gets one line, not two."""
+    record = logging.LogRecord("sysid", logging.ERROR, __file__, 0, message, None, None)
+    raising, logging.raiseExceptions = logging.raiseExceptions, False  # a full disk: no "Logging error" dump
+    try:
+        for handler in logging.getLogger().handlers:
+            if isinstance(handler, logging.FileHandler):
+                handler.handle(record)
+    finally:
+        logging.raiseExceptions = raising
+
+
+def record_failure(out: Path, err: BaseException, *, with_traceback: bool = True) -> str:
+    """Write `failure.json` into the run folder `out` (unless the folder is not this run's: it holds a finished
+    run's results, or another run holds it) and log the error; returns the one-line description."""
+    from harness.rundir import RunFolderError
+
+    message = describe_failure(err)
+    _log_to_files(message)
+    if isinstance(err, RunFolderError) or any((out / name).exists() for name in _RESULT_FILES):
+        return message
+    payload = {"error": message, "traceback": traceback.format_exc() if with_traceback else None}
+    with contextlib.suppress(OSError):  # the folder may be the very thing that failed
+        if out.is_dir():
+            write_json(out / "failure.json", payload)
+    return message
+
+
 def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
     """Run one Hydra job.
 
-    Inside a sweep (`-m`) a failure is written to `failure.json` in the job's folder and the sweep goes on with
-    the other jobs. A single run that fails on bad input prints one clear line and exits with status 2;
-    any other exception propagates with its traceback.
+    A single run that fails writes `failure.json` (the error and its traceback) into its folder and logs it;
+    bad input, a bad config or an unusable disk (`USER_ERRORS`) prints one line and exits with status 2, any
+    other exception propagates with its traceback. SIGTERM ends the run through its clean-up code.
+
+    Inside a sweep (`-m`) each job runs in a child process of its own (see `harness.sweep`): a job that
+    raises, or whose process is killed (SIGKILL, the out-of-memory killer), is recorded in `failure.json` and
+    the sweep goes on with the other jobs; the sweep's exit status says whether any failed.
     """
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
     hydra_cfg = HydraConfig.get()
-    if hydra_cfg.mode != RunMode.MULTIRUN:
+    out = Path(hydra_cfg.runtime.output_dir)
+    if hydra_cfg.mode == RunMode.MULTIRUN:
+        from harness.sweep import run_isolated
+
+        return run_isolated(work, cfg, out, label=f"job {hydra_cfg.job.num}")
+    with terminate_as_exit():
         try:
             return work(cfg)
-        except ValueError as err:  # bad input or an impossible request (SysIdError subclasses included)
-            print(f"{hydra_cfg.job.name}: error: {err}", file=sys.stderr)
-            raise SystemExit(2) from err
-    try:
-        return work(cfg)
-    except Exception as err:
-        out = Path(hydra_cfg.runtime.output_dir)
-        message = f"{type(err).__name__}: {err}"
-        write_json(out / "failure.json", {"error": message, "traceback": traceback.format_exc()})
-        print(f"job {hydra_cfg.job.num} failed: {message}", file=sys.stderr)
-        return None
+        except BaseException as err:
+            message = record_failure(out, err)
+            if isinstance(err, USER_ERRORS):
+                print(f"{hydra_cfg.job.name}: error: {one_line(err)}", file=sys.stderr)
+                raise SystemExit(2) from None
+            if isinstance(err, SystemExit | KeyboardInterrupt):
+                print(f"{hydra_cfg.job.name}: {message}", file=sys.stderr)
+            raise

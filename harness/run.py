@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,9 +25,9 @@ from excitation.criteria import conditioning
 from excitation.designs import grid
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
-from excitation.registry import EXCITATIONS
 from harness.progress import printer
 from harness.results import run_job, summary_table, write_json
+from harness.rundir import RunFolder, RunFolderError, check_output_override, claim
 from harness.setup import (
     CONF_DIR,
     design_from_config,
@@ -35,15 +36,16 @@ from harness.setup import (
     system_for_overrides,
     with_model_defaults,
 )
+from harness.validate import ConfigError, check_command_line, validate_run_config
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
-from identify.derivatives import DERIVATIVES, derive_states
+from identify.derivatives import derive_states
 from identify.derived import DERIVED
-from identify.estimators import ESTIMATORS, estimate
+from identify.estimators import estimate
 from identify.problem import Estimate, Problem, build_problem
 
 __all__ = ["main", "run"]
 
-RECORD_KINDS = ("none", "rerun")
+OUTPUTS = ("data.csv", "recording.rrd", "results.json")  # in writing order: results.json marks a finished run
 
 
 @contextmanager
@@ -51,18 +53,6 @@ def _timed(timing: dict[str, float], stage: str) -> Iterator[None]:
     start = time.perf_counter()
     yield
     timing[stage] = timing.get(stage, 0.0) + time.perf_counter() - start
-
-
-def _check_choices(cfg: DictConfig) -> None:
-    """Fail before any work when a named choice is unknown."""
-    for label, name, valid in (
-        ("estimator", cfg.estimator.name, ESTIMATORS),
-        ("excitation", cfg.excitation.name, EXCITATIONS),
-        ("identify.derivatives", cfg.identify.derivatives, DERIVATIVES),
-        ("record", cfg.record.kind, RECORD_KINDS),
-    ):
-        if name not in valid:
-            raise ValueError(f"unknown {label} {name!r}; valid choices: {', '.join(sorted(valid))}")
 
 
 def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Dataset, torque_driven: bool) -> dict:
@@ -99,14 +89,28 @@ def _identify(
 
 
 def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
-    """The whole loop for `cfg.system`; writes results.json, data.csv and recording.rrd into `output_dir`."""
-    _check_choices(cfg)
+    """The whole loop for `cfg.system`; writes data.csv, recording.rrd and results.json (last) into `output_dir`.
+
+    The config is checked first (`harness.validate`), then the folder is claimed for this run
+    (`harness.rundir.claim`: writable, not in use, no finished run unless `overwrite=true`).
+
+    Raises:
+        ConfigError: a config value is wrong (named by its key).
+        RunFolderError: the output folder cannot be used.
+    """
+    loaded = load_plant(cfg.system.mjcf)
+    cfg = with_model_defaults(cfg, loaded)
+    validate_run_config(cfg, loaded)
     out = Path(output_dir) if output_dir is not None else _hydra_output_dir()
+    with claim(out, outputs=OUTPUTS, overwrite=bool(cfg.overwrite)) as folder:
+        return _run(cfg, folder, loaded)
+
+
+def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
+    out = folder.path
     timing: dict[str, float] = {}
     rng_design, rng_noise, rng_base, rng_val = np.random.default_rng(int(cfg.seed)).spawn(4)
     with _timed(timing, "setup"):
-        loaded = load_plant(cfg.system.mjcf)
-        cfg = with_model_defaults(cfg, loaded)
         exp = experiment_from_config(cfg, rng_base, plant=loaded)
         plant, limits, model, base, sensor = exp.plant, exp.limits, exp.model, exp.base, exp.sensor
     with _timed(timing, "excitation"):
@@ -172,7 +176,9 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
         },
         "timing_s": timing,
         "config": OmegaConf.to_container(cfg, resolve=True),
+        "overrides": _overrides(),
     }
+    folder.retire()
     _write_outputs(out, cfg, results, data, problem, est)
     print(summary_table(results))
     print(f"outputs in {out}")
@@ -203,7 +209,6 @@ def _derived(plant: Plant, base: BaseParameters, est: Estimate) -> list[dict[str
 
 def _write_outputs(out: Path, cfg: DictConfig, results: dict, data: Dataset, problem: Problem, est: Estimate) -> None:
     """data.csv and recording.rrd first, results.json last: a results file means a finished run."""
-    out.mkdir(parents=True, exist_ok=True)
     write_csv(data, out / "data.csv")
     plant = problem.model.plant
     if plant.source is not None:  # a URDF: the MJCF that MuJoCo compiled from it, and that was used
@@ -226,6 +231,15 @@ def _write_outputs(out: Path, cfg: DictConfig, results: dict, data: Dataset, pro
     write_json(out / "results.json", results)
 
 
+def _overrides() -> list[str]:
+    """This run's command-line overrides (kept in results.json: another run's .hydra/ cannot mix with them)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return []
+    return [str(o) for o in HydraConfig.get().overrides.task]
+
+
 def _hydra_output_dir() -> Path:
     from hydra.core.hydra_config import HydraConfig
 
@@ -233,11 +247,21 @@ def _hydra_output_dir() -> Path:
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
-def main(cfg: DictConfig) -> None:
-    """Console entry point `sysid-run`."""
+def _hydra_main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     run_job(run, system_for_overrides(cfg, list(HydraConfig.get().overrides.task)))
+
+
+def main() -> None:
+    """Console entry point `sysid-run`: config-group values are checked (all of a sweep's) before Hydra starts."""
+    try:
+        check_command_line(sys.argv[1:], CONF_DIR, "config")
+        check_output_override(sys.argv[1:], OUTPUTS)
+    except (ConfigError, RunFolderError) as err:
+        print(f"sysid-run: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    _hydra_main()
 
 
 if __name__ == "__main__":

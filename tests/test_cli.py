@@ -91,7 +91,7 @@ def test_failed_run_leaves_no_results(tmp_path: Path) -> None:
 
 def test_results_json_is_replaced_whole(tmp_path: Path) -> None:
     (tmp_path / "results.json").write_text('{"old": true}')
-    run(compose_config(["record=none", "system=pendulum"]), output_dir=tmp_path)
+    run(compose_config(["record=none", "system=pendulum", "overwrite=true"]), output_dir=tmp_path)
     results = json.loads((tmp_path / "results.json").read_text())
     _check_schema(results)
     assert not list(tmp_path.glob(".*.tmp"))

@@ -14,11 +14,13 @@ from tests.conftest import rrd_has_blueprint, rrd_rows
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _sweep(sweep: Path, *overrides: str) -> None:
-    """`sysid-run -m` into `sweep` with the pendulum, no recordings, and these overrides."""
+def _sweep(sweep: Path, *overrides: str, status: int = 0) -> subprocess.CompletedProcess:
+    """`sysid-run -m` into `sweep` with the pendulum, no recordings, and these overrides; checks the exit status
+    (1 when any job failed)."""
     cmd = [sys.executable, "-m", "harness.run", "-m", f"hydra.sweep.dir={sweep}", "system=pendulum", "record=none"]
     proc = subprocess.run([*cmd, *overrides], cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.returncode == status, proc.stderr[-3000:]
+    return proc
 
 
 def test_two_job_sweep_and_its_report(tmp_path: Path) -> None:
@@ -41,7 +43,9 @@ def test_two_job_sweep_and_its_report(tmp_path: Path) -> None:
 
 def test_a_failed_job_is_reported_and_the_others_finish(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
-    _sweep(sweep, "system.limits.acceleration=1e-6,60")
+    proc = _sweep(sweep, "system.limits.acceleration=1e-6,60", status=1)
+    assert "1 of 2 job(s) failed" in proc.stderr and "binding constraint ddq" in proc.stderr.splitlines()[-1]
+    assert "Traceback" not in proc.stderr  # a bad-input failure is one line, in the job and at the end
     rows = {float(r["overrides"].split("acceleration=")[1]): r for r in report_rows(collect(sweep))}
     assert rows[60.0]["status"] == "ok"
     assert rows[1e-6]["status"] == "failed"

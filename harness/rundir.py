@@ -1,0 +1,184 @@
+"""A run folder belongs to one run: a lock while it runs, no silent overwrite, and clean-up on SIGTERM.
+
+`claim(folder, outputs=..., overwrite=...)` is entered before any computation:
+
+- the folder is created and checked writable (a read-only folder or a full disk fails here, not after
+  minutes of work);
+- an exclusive `fcntl` lock on `.sysid.lock` (which holds the owner's pid, and is removed at the end) is taken;
+  a second run into the same folder is refused while the first holds it, and the lock goes with the process
+  however it ends;
+- a folder that already holds outputs of a finished run (a user's `results.json`, `data.csv`, ...) is refused
+  unless `overwrite` is true;
+- temporary files that a killed run left (`.<name>.*.tmp`) are removed.
+
+`RunFolder.retire()` removes the previous run's outputs (results file first) just before the new ones are
+written, so that a rerun that fails while writing never leaves the old results beside new data.
+`terminate_as_exit()` turns SIGTERM into `SystemExit`, so that every `finally` and temporary-file clean-up
+runs when a scheduler stops the job.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+import signal
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+
+__all__ = ["LOCK_NAME", "RunFolder", "RunFolderError", "check_output_override", "claim", "terminate_as_exit"]
+
+LOCK_NAME = ".sysid.lock"
+
+
+class RunFolderError(ValueError):
+    """The run folder cannot be used: not writable, in use by another run, or holding a finished run."""
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """A claimed run folder and the outputs its run writes (the results file last)."""
+
+    path: Path
+    outputs: tuple[str, ...]
+
+    def retire(self) -> None:
+        """Remove the previous outputs (the results file, the last of `outputs`, first) and any failure record."""
+        for name in (*reversed(self.outputs), "failure.json"):
+            (self.path / name).unlink(missing_ok=True)
+
+
+def _check_writable(folder: Path) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".sysid_write_probe.{os.getpid()}.tmp"
+        with probe.open("wb") as f:
+            f.write(b"\0" * 4096)  # a full disk refuses a block, not always an empty file
+            f.flush()
+            os.fsync(f.fileno())
+        probe.unlink()
+    except OSError as err:
+        reason = "no space left on the device" if err.errno == errno.ENOSPC else (err.strerror or str(err))
+        raise RunFolderError(f"run folder {folder} is not writable: {reason}") from None
+
+
+def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> None:
+    """Before Hydra starts: the run (or sweep) folder of a command line, or the folder it would be made in, is
+    writable, not in use by another run, and (a single run's folder) holds none of `outputs` unless the command
+    line says `overwrite=true`. Hydra writes its `.hydra/` files and log there before any of our code runs: it
+    would fail with a traceback, or replace a finished run's `.hydra/` before `claim` could refuse the folder.
+
+    Raises:
+        RunFolderError: the folder (or its nearest existing parent) is not writable, is locked, or holds a run.
+    """
+    key = "hydra.sweep.dir=" if ("-m" in argv or "--multirun" in argv) else "hydra.run.dir="
+    values = [a.split("=", 1)[1] for a in argv if a.startswith(key)]
+    target = Path(values[-1].split("${", 1)[0] or ".") if values else Path.cwd()
+    folder = target.absolute()
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise RunFolderError(f"run folder {target}: {folder} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=folder) as f:
+            f.write(b"\0" * 4096)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as err:
+        reason = "no space left on the device" if err.errno == errno.ENOSPC else (err.strerror or str(err))
+        where = "" if folder == target.absolute() else f" (it would be made in {folder})"
+        raise RunFolderError(f"run folder {target} is not writable{where}: {reason}") from None
+    if values and target.is_dir() and key == "hydra.run.dir=":
+        if (target / LOCK_NAME).exists():
+            os.close(_lock(target / LOCK_NAME, target))  # raises while another run holds it
+        present = [name for name in outputs if (target / name).exists()]
+        if present and "overwrite=true" not in argv:
+            raise RunFolderError(
+                f"run folder {target} already holds {', '.join(present)} of another run; "
+                "pass overwrite=true to replace them, or choose another folder"
+            )
+
+
+def _clean_stale_temporaries(folder: Path) -> list[str]:
+    removed = []
+    for p in folder.glob(".*.tmp"):
+        if p.is_file():
+            p.unlink(missing_ok=True)
+            removed.append(p.name)
+    return removed
+
+
+@contextmanager
+def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool) -> Iterator[RunFolder]:
+    """Hold `folder` for one run (see the module docstring); released when the block ends.
+
+    Args:
+        folder: the run folder (created if absent).
+        outputs: the files the run writes, in writing order; the last one is the results file that marks a
+            finished run.
+        overwrite: allow replacing the outputs of a finished run.
+
+    Raises:
+        RunFolderError: not writable, locked by another run, or holding outputs and `overwrite` is false.
+    """
+    folder = Path(folder)
+    _check_writable(folder)
+    lock = folder / LOCK_NAME
+    fd = _lock(lock, folder)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        present = [name for name in outputs if (folder / name).exists()]
+        if present and not overwrite:
+            raise RunFolderError(
+                f"run folder {folder} already holds {', '.join(present)} of another run; "
+                "pass overwrite=true to replace them, or choose another folder"
+            )
+        _clean_stale_temporaries(folder)
+        yield RunFolder(folder, tuple(outputs))
+    finally:
+        lock.unlink(missing_ok=True)  # while still holding it: a later run finds no stale file
+        os.close(fd)  # closing releases the lock
+
+
+def _lock(lock: Path, folder: Path) -> int:
+    """An open descriptor holding the exclusive lock on `lock` (the file at that path, not an unlinked one)."""
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise RunFolderError(
+                f"run folder {folder} is in use by another run (pid {owner}); wait for it or choose another folder"
+            ) from None
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)  # the holder removed the file between our open and our lock: try the new one
+
+
+@contextmanager
+def terminate_as_exit() -> Iterator[None]:
+    """Within the block, SIGTERM raises `SystemExit(143)` in the main thread (clean-up code then runs)."""
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        raise SystemExit(128 + signum)
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

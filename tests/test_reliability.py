@@ -1,0 +1,542 @@
+"""Issue 13: no silent garbage, no lost or mixed runs, one-line errors. One block per numbered problem.
+
+Faults are injected for real where the machine allows it (SIGKILL and SIGTERM sent to the job's process, a
+tiny or read-only tmpfs mounted as root) and through a patched writer otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dynamics.errors import DataError
+from dynamics.plant import load_plant
+from envs.dataset import atomic_write
+from envs.measured import read_measured
+from harness import report
+from harness.record import save_recording
+from harness.run import run
+from harness.rundir import LOCK_NAME, RunFolderError, claim, terminate_as_exit
+from harness.validate import ConfigError, check_command_line, check_group_overrides, validate_run_config
+from tests.conftest import compose_config
+
+REPO = Path(__file__).resolve().parents[1]
+CONF = REPO / "conf"
+
+
+def _cli(*args: str, module: str = "harness.run", timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", module, *args], cwd=REPO, capture_output=True, text=True, timeout=timeout, check=False
+    )
+
+
+def _one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
+    """Exit status 2, no traceback, and the last stderr line names the problem."""
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    for needle in needles:
+        assert needle in last, last
+
+
+def _wait_for_lock(folder: Path, timeout_s: float = 120) -> int:
+    """The pid written in `folder`'s lock file once a run holds it."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with contextlib.suppress(OSError, ValueError):
+            return int((folder / LOCK_NAME).read_text().split()[0])
+        time.sleep(0.05)
+    raise AssertionError(f"no run took the lock of {folder}")
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished pendulum run (results.json, data.csv) made under umask 022."""
+    out = tmp_path_factory.mktemp("finished")
+    old = os.umask(0o022)
+    try:
+        run(compose_config(["record=none", "system=pendulum"]), output_dir=out)
+    finally:
+        os.umask(old)
+    return out
+
+
+def _mount_tmpfs(target: Path, *options: str) -> bool:
+    target.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        return False
+    proc = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", ",".join(options), "tmpfs", str(target)], capture_output=True, check=False
+    )
+    return proc.returncode == 0
+
+
+@contextlib.contextmanager
+def _tmpfs(target: Path, *options: str) -> Iterator[Path]:
+    if not _mount_tmpfs(target, *options):
+        pytest.skip("mounting a tmpfs needs root with CAP_SYS_ADMIN; the patched-writer test covers the same path")
+    try:
+        yield target
+    finally:
+        subprocess.run(["umount", "-l", str(target)], capture_output=True, check=False)
+
+
+# 1. spikes in q on a file without dq ---------------------------------------------------------------------------
+
+
+def _spiked_csv(path: Path, fraction: float, *, n: int = 3000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A pendulum record at 500 Hz without dq, with isolated spikes of 0.3-0.6 rad in `fraction` of its rows."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 500.0
+    q = 0.8 * np.sin(2 * np.pi * 0.3 * t) + 0.3 * np.sin(2 * np.pi * 1.1 * t + 0.4)
+    q_meas = q + 1e-5 * rng.standard_normal(n)
+    k = round(fraction * n)
+    candidates = np.arange(20, n - 20, 3)  # isolated: never two spikes within two rows
+    rows = np.sort(rng.choice(candidates, size=k, replace=False))
+    q_meas[rows] += rng.choice([-1, 1], size=k) * rng.uniform(0.3, 0.6, size=k)
+    tau = 0.3 * np.sin(q) + 0.01 * rng.standard_normal(n)
+    np.savetxt(path, np.column_stack([t, q_meas, tau]), delimiter=",", header="time,q_swing,tau_swing", comments="")
+    return rows, q
+
+
+@pytest.mark.parametrize("fraction", [0.0067, 0.0099])
+def test_spikes_in_q_without_dq_are_repaired_with_a_report(tmp_path: Path, fraction: float) -> None:
+    rows, q_clean = _spiked_csv(tmp_path / "spiked.csv", fraction)
+    data = read_measured(tmp_path / "spiked.csv", load_plant("pendulum"))
+    glitches = [r for r in data.meta["repairs"] if r.kind == "glitch"]
+    assert len(glitches) == 1 and set(glitches[0].rows) == set(rows.tolist())
+    assert f"{len(rows)} glitch(es)" in glitches[0].message
+    assert np.max(np.abs(data.q[:, 0] - q_clean)) < 1e-3  # the spikes are gone, the motion is kept
+
+
+def test_spikes_past_the_stated_fraction_are_refused(tmp_path: Path) -> None:
+    _spiked_csv(tmp_path / "spiked.csv", 0.02)
+    with pytest.raises(DataError, match=r"spiked\.csv: column 'q_swing' has 60 glitch samples .* more than 1%"):
+        read_measured(tmp_path / "spiked.csv", load_plant("pendulum"))
+
+
+# 2. a run folder belongs to one run ----------------------------------------------------------------------------
+
+
+def test_a_concurrent_run_into_the_same_folder_is_refused(tmp_path: Path) -> None:
+    out = tmp_path / "shared"
+    args = ["system=wheel_pendulum", "record=none", f"hydra.run.dir={out}"]
+    first = subprocess.Popen(
+        [sys.executable, "-m", "harness.run", *args, "seed=1"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        pid = _wait_for_lock(out)
+        second = _cli(*args, "seed=2")
+        _one_line_error(second, "in use by another run", f"pid {pid}")
+    finally:
+        _, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err[-2000:]
+    assert "seed=1" in (out / ".hydra" / "overrides.yaml").read_text()  # the refused run wrote nothing here
+    results = json.loads((out / "results.json").read_text())
+    assert results["seed"] == 1 and "seed=1" in results["overrides"]
+    (row,) = report.report_rows(report.collect(tmp_path))
+    assert "seed=1" in row["overrides"] and "seed=2" not in row["overrides"]  # the run's own, not .hydra's
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_a_folder_holding_a_users_results_is_refused_without_overwrite(tmp_path: Path) -> None:
+    (tmp_path / "results.json").write_text('{"mine": true}')
+    (tmp_path / "data.csv").write_text("time,q\n0,0\n")
+    with pytest.raises(RunFolderError, match=r"already holds data\.csv, results\.json .*overwrite=true"):
+        run(compose_config(["record=none", "system=pendulum"]), output_dir=tmp_path)
+    assert (tmp_path / "results.json").read_text() == '{"mine": true}'
+    assert (tmp_path / "data.csv").read_text() == "time,q\n0,0\n"
+    proc = _cli("system=pendulum", "record=none", f"hydra.run.dir={tmp_path}")
+    _one_line_error(proc, "already holds", "overwrite=true")
+    assert (tmp_path / "results.json").read_text() == '{"mine": true}'
+    assert not (tmp_path / ".hydra").exists()  # refused before Hydra wrote its files into the folder
+    assert not (tmp_path / "failure.json").exists()  # the folder is not this run's: nothing added to it
+
+
+def test_a_rerun_failing_on_a_full_disk_leaves_no_old_results_beside_new_data(
+    finished_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "rerun"
+    out.mkdir()
+    for name in ("results.json", "data.csv"):
+        (out / name).write_bytes((finished_run / name).read_bytes())
+    import harness.run as run_module
+
+    def full_disk(path: Path, payload: dict) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(run_module, "write_json", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        run(compose_config(["record=none", "system=pendulum", "seed=5", "overwrite=true"]), output_dir=out)
+    assert not (out / "results.json").exists()  # no stale results beside the new data.csv
+    assert not list(out.glob(".*.tmp"))
+
+
+def test_results_json_is_published_last(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import harness.run as run_module
+
+    seen: list[set[str]] = []
+    real = run_module.write_json
+
+    def spy(path: Path, payload: dict) -> None:
+        seen.append({p.name for p in tmp_path.iterdir()})
+        real(path, payload)
+
+    monkeypatch.setattr(run_module, "write_json", spy)
+    run(compose_config(["system=pendulum"]), output_dir=tmp_path)
+    assert seen == [{"data.csv", "recording.rrd", LOCK_NAME}]
+
+
+# 3. sweeps -----------------------------------------------------------------------------------------------------
+
+
+def test_a_job_killed_by_sigkill_inside_a_joblib_sweep_is_recorded_and_the_others_finish(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "harness.run",
+            "-m",
+            "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2",
+            f"hydra.sweep.dir={sweep}",
+            "record=none",
+            "system=wheel_pendulum,pendulum",
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        pid = _wait_for_lock(sweep / "0_wheel_pendulum")
+        os.kill(pid, signal.SIGKILL)  # as the out-of-memory killer would
+    finally:
+        _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1, err[-3000:]
+    assert "TerminatedWorkerError" not in err
+    assert "1 of 2 job(s) failed" in err
+    failure = json.loads((sweep / "0_wheel_pendulum" / "failure.json").read_text())
+    assert "killed by SIGKILL" in failure["error"]
+    assert (sweep / "1_pendulum" / "results.json").is_file()
+    rows = {r["job"]: r for r in report.report_rows(report.collect(sweep))}
+    assert rows["1_pendulum"]["status"] == "ok"
+    assert rows["0_wheel_pendulum"]["status"] == "failed" and "SIGKILL" in rows["0_wheel_pendulum"]["error"]
+
+
+def test_a_config_group_typo_in_a_sweep_lists_the_valid_choices_before_any_job(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    proc = _cli("-m", f"hydra.sweep.dir={sweep}", "record=none", "system=pendulum,tow_link")
+    systems = ", ".join(sorted(p.stem for p in (CONF / "system").glob("*.yaml")))
+    _one_line_error(proc, "unknown system 'tow_link'", f"valid choices: {systems}")
+    assert not sweep.exists()
+    with pytest.raises(
+        ConfigError, match=r"unknown estimator 'wlss' \(in the sweep estimator=ols,wlss\); valid choices: .*ols.*wls"
+    ):
+        check_group_overrides(["estimator=ols,wlss"], CONF)
+    check_group_overrides(["system=pendulum,two_link", "hydra/launcher=joblib", "seed=range(0,3)"], CONF)
+
+
+# 4. a full disk does not hang ------------------------------------------------------------------------------------
+
+
+def test_a_recording_on_a_full_disk_fails_at_once_and_leaves_nothing(tmp_path: Path) -> None:
+    script = (
+        "import numpy as np, rerun as rr, sys\n"
+        "from harness.record import save_recording, log_joint_series\n"
+        "t = np.arange(200000) * 1e-3\n"
+        "try:\n"
+        f"    save_recording('{tmp_path}/disk/r.rrd', 'x', lambda rec: log_joint_series(rec, 's', t, np.sin(t)))\n"
+        "except OSError as err:\n"
+        "    print('ENOSPC' if err.errno == 28 else err)\n"
+    )
+    with _tmpfs(tmp_path / "disk", "size=64k"):
+        # a hang (rerun's own file sink waits forever on ENOSPC) fails the test through the timeout
+        proc = subprocess.run(
+            [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120, check=False
+        )
+        assert proc.stdout.strip() == "ENOSPC", proc.stderr[-2000:]
+        assert not list((tmp_path / "disk").iterdir())
+
+
+def test_a_run_on_a_full_disk_is_one_line_and_leaves_no_results(tmp_path: Path) -> None:
+    with _tmpfs(tmp_path / "disk", "size=256k"):
+        out = tmp_path / "disk" / "run"
+        proc = _cli("system=pendulum", f"hydra.run.dir={out}")
+        _one_line_error(proc, "No space left on device")
+        assert not (out / "results.json").exists()
+        assert not list(out.glob(".*.tmp"))
+
+
+def test_save_recording_writes_a_readable_file_through_atomic_write(tmp_path: Path) -> None:
+    from tests.conftest import rrd_rows
+
+    def fill(rec) -> None:  # type: ignore[no-untyped-def]
+        import rerun as rr
+
+        rec.log("x", rr.Scalars(1.0))
+
+    save_recording(tmp_path / "a.rrd", "t", fill)
+    assert rrd_rows(tmp_path / "a.rrd")["/x"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["a.rrd"]
+
+
+# 5. excitation.harmonics -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ("0", "excitation.harmonics must be >= 1, got 0"),
+        ("-3", "excitation.harmonics must be >= 1, got -3"),
+        ("1000", "excitation.harmonics must be between 1 and 50, got 1000"),
+        ("2.5", "excitation.harmonics must be an integer, got 2.5"),
+        ("five", "excitation.harmonics must be an integer, got 'five'"),
+    ],
+)
+def test_harmonics_are_checked_before_any_work(value: str, message: str) -> None:
+    cfg = compose_config(["system=pendulum", f"excitation.harmonics={value}"])
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+        validate_run_config(cfg, load_plant("pendulum"))
+
+
+def test_harmonics_are_bounded_by_the_sampling() -> None:
+    cfg = compose_config(["system=pendulum", "excitation.harmonics=30", "system.sensor.sample_rate_hz=20"])
+    with pytest.raises(ConfigError, match=r"between 1 and .* Nyquist frequency 10 Hz"):
+        validate_run_config(cfg, load_plant("pendulum"))
+    validate_run_config(compose_config(["system=pendulum", "excitation.harmonics=8"]), load_plant("pendulum"))
+
+
+# 6. sysid-report survives a corrupt job file -------------------------------------------------------------------
+
+
+def test_report_survives_corrupt_job_files_and_names_them(finished_run: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    good = tmp_path / "0_ok"
+    good.mkdir()
+    (good / "results.json").write_bytes((finished_run / "results.json").read_bytes())
+    for i, content in enumerate([b'{"system": "pend', b"\x00\x01\x02binary", b"[1, 2]", b'{"system": "x"}']):
+        job = tmp_path / f"{i + 1}_bad"
+        job.mkdir()
+        (job / "results.json").write_bytes(content)
+    assert report.main([str(tmp_path)]) == 0
+    rows = {r["job"]: r for r in report.report_rows(report.collect(tmp_path))}
+    assert rows["0_ok"]["status"] == "ok"
+    for i in range(1, 5):
+        row = rows[f"{i}_bad"]
+        assert row["status"] == "failed" and f"{i}_bad/results.json" in row["error"], row
+    md = (tmp_path / "report.md").read_text()
+    assert "5 jobs, 1 ok, 4 failed" in md and "1_bad/results.json: unreadable or corrupt" in md
+    assert "job 1_bad failed" in capsys.readouterr().err
+
+
+# 7. tracebacks for common mistakes become one line, exit 2 ---------------------------------------------------------
+
+
+def test_an_unknown_key_or_malformed_value_is_one_config_error() -> None:
+    with pytest.raises(ConfigError, match=r"Could not override 'foo'.*Key 'foo' is not in struct"):
+        check_command_line(["foo=1"], CONF, "config")
+    with pytest.raises(ConfigError, match=r"no viable alternative at input '\[1,'$"):
+        check_command_line(["system.limits.velocity=[1,"], CONF, "config")
+    check_command_line(["system=arm3", "hydra.run.dir=/tmp/x", "-m", "seed=1,2"], CONF, "config")
+
+
+def test_no_data_path_is_one_line(tmp_path: Path) -> None:
+    proc = _cli("system=pendulum", f"hydra.run.dir={tmp_path}", module="harness.diagnose")
+    _one_line_error(proc, "data.path is not set")
+
+
+def test_estimator_options_of_another_estimator_are_one_line(tmp_path: Path) -> None:
+    proc = _cli("system=pendulum", "estimator.name=ols", f"hydra.run.dir={tmp_path}")
+    _one_line_error(proc, "estimator.options.iterations is not an option of estimator 'ols'")
+
+
+def test_unreadable_file_names_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "locked.csv"
+    path.write_text("time,q_swing,tau_swing\n0,0,0\n")
+    if os.geteuid() != 0:
+        path.chmod(0)
+    else:  # root reads any file: inject the refusal the file system would give anyone else
+        real_open = Path.open
+
+        def refuse(self: Path, *args, **kwargs):  # type: ignore[no-untyped-def]
+            if self == path:
+                raise PermissionError(errno.EACCES, "Permission denied", str(self))
+            return real_open(self, *args, **kwargs)
+
+        monkeypatch.setattr(Path, "open", refuse)
+    with pytest.raises(DataError, match=r"locked\.csv: cannot be read: permission denied"):
+        read_measured(path, load_plant("pendulum"))
+
+
+_HEADER = b"time,q_swing,tau_swing\n"
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (_HEADER + b"0,0\x00,0\n", rf"a binary file \(a NUL byte at byte {len(_HEADER) + 3}, line 2\)"),
+        (bytes(range(256)) * 4, r"a binary file \(a NUL byte at byte 0, line 1\)"),
+        (_HEADER + b"0,0,0\n1,0,caf\xe9\n", rf"not UTF-8 text \(byte 0xe9 at byte {len(_HEADER) + 13}, line 3\)"),
+    ],
+)
+def test_binary_and_non_utf8_files_name_the_file_and_place(tmp_path: Path, content: bytes, message: str) -> None:
+    (tmp_path / "bad.csv").write_bytes(content)
+    with pytest.raises(DataError, match=r"bad\.csv: " + message):
+        read_measured(tmp_path / "bad.csv", load_plant("pendulum"))
+
+
+def test_a_read_only_run_folder_is_refused_before_any_work(tmp_path: Path) -> None:
+    with _tmpfs(tmp_path / "ro", "ro", "size=64k"):
+        proc = _cli("system=pendulum", "record=none", f"hydra.run.dir={tmp_path / 'ro' / 'run'}")
+        _one_line_error(proc, "is not writable", "Read-only file system")
+
+
+def test_a_full_disk_found_before_any_work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import harness.rundir as rundir
+
+    def full(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(rundir.os, "fsync", full)
+    with pytest.raises(RunFolderError, match="is not writable: no space left on the device"):
+        run(compose_config(["record=none", "system=pendulum"]), output_dir=tmp_path / "run")
+
+
+# 8. outputs follow the umask -------------------------------------------------------------------------------------
+
+
+def test_outputs_get_the_umasks_permissions(finished_run: Path, tmp_path: Path) -> None:
+    for name in ("results.json", "data.csv"):
+        assert stat.S_IMODE((finished_run / name).stat().st_mode) == 0o644, name
+    old = os.umask(0o027)
+    try:
+        atomic_write(tmp_path / "x.json", lambda f: f.write("{}"))
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "x.json").stat().st_mode) == 0o640
+
+
+# 9. messages that name the problem ---------------------------------------------------------------------------------
+
+
+def test_time_in_milliseconds_is_named(tmp_path: Path) -> None:
+    t = np.arange(500) * 2.0  # 2 ms steps written in ms
+    table = np.column_stack([t, np.sin(t / 1000), np.cos(t / 1000)])
+    np.savetxt(tmp_path / "ms.csv", table, delimiter=",", header="time,q_swing,tau_swing", comments="")
+    with pytest.raises(DataError, match=r"ms\.csv: column 'time' .* time looks like milliseconds \(500 Hz then\)"):
+        read_measured(tmp_path / "ms.csv", load_plant("pendulum"))
+
+
+def test_wrong_joint_count_in_a_system_config_is_named() -> None:
+    cfg = compose_config(["system=two_link", "system.limits.velocity=[1,2,3]"])
+    with pytest.raises(ConfigError, match=r"system\.limits\.velocity has 3 value\(s\) but two_link has 2 joint"):
+        validate_run_config(cfg, load_plant("two_link"))
+
+
+def test_a_directory_given_as_the_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="is a folder, not a file"):
+        read_measured(tmp_path, load_plant("pendulum"))
+
+
+def test_seed_abc_names_the_key(tmp_path: Path) -> None:
+    proc = _cli("system=pendulum", "seed=abc", f"hydra.run.dir={tmp_path}")
+    _one_line_error(proc, "seed must be an integer, got 'abc'")
+
+
+# 10. a record of why a run failed; clean-up on SIGTERM and after SIGKILL ----------------------------------------------
+
+
+def test_a_failed_single_run_writes_failure_json_and_its_log(tmp_path: Path) -> None:
+    proc = _cli("system=pendulum", "record=none", "system.limits.acceleration=1e-6", f"hydra.run.dir={tmp_path}")
+    _one_line_error(proc, "binding constraint ddq")
+    failure = json.loads((tmp_path / "failure.json").read_text())
+    assert failure["error"].startswith("InfeasibleExcitationError: ") and "Traceback" in failure["traceback"]
+    assert "binding constraint ddq" in (tmp_path / "sysid-run.log").read_text()
+
+
+def test_sigterm_ends_a_run_through_its_clean_up(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "harness.run", "system=wheel_pendulum", "record=none", f"hydra.run.dir={tmp_path}"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    pid = _wait_for_lock(tmp_path)
+    os.kill(pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    assert "terminated by SIGTERM" in err.strip().splitlines()[-1]
+    assert json.loads((tmp_path / "failure.json").read_text())["error"] == "terminated by SIGTERM"
+    assert not list(tmp_path.glob(".*.tmp")) and not (tmp_path / LOCK_NAME).exists()
+
+
+def test_sigterm_while_writing_removes_the_temporary_file(tmp_path: Path) -> None:
+    def write(f) -> None:  # type: ignore[no-untyped-def]
+        f.write("half")
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises here
+        f.write(" and the rest")
+
+    with pytest.raises(SystemExit) as exit_info, terminate_as_exit():
+        atomic_write(tmp_path / "out.json", write)
+    assert exit_info.value.code == 128 + signal.SIGTERM
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_temporary_files_left_by_a_killed_run_are_removed_by_the_next(tmp_path: Path) -> None:
+    (tmp_path / ".data.csv.x1y2.tmp").write_text("half")
+    (tmp_path / "notes.txt").write_text("mine")
+    with claim(tmp_path, outputs=("data.csv", "results.json"), overwrite=False):
+        assert (tmp_path / LOCK_NAME).is_file()
+        with pytest.raises(RunFolderError, match="in use by another run"), claim(tmp_path, outputs=(), overwrite=False):
+            pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+# 11. large files: memory scales with the file ----------------------------------------------------------------------
+
+
+def test_reading_memory_stays_within_twice_the_file(tmp_path: Path) -> None:
+    n = 300_000
+    t = np.arange(n) / 500.0
+    cols = [t, np.sin(t), np.cos(0.7 * t), np.cos(t), -0.7 * np.sin(0.7 * t), np.sin(2 * t), np.cos(3 * t)]
+    path = tmp_path / "big.csv"
+    header = "time,q_shoulder,q_elbow,dq_shoulder,dq_elbow,tau_shoulder,tau_elbow"
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.10g")
+    # ru_maxrss survives exec (this child would start with pytest's peak): read the peak from /proc instead,
+    # resetting it (clear_refs 5) before the read
+    script = (
+        "from dynamics.plant import load_plant\n"
+        "from envs.measured import read_measured\n"
+        "def kb(field):\n"
+        "    return next(int(ln.split()[1]) for ln in open('/proc/self/status') if ln.startswith(field + ':'))\n"
+        "plant = load_plant('two_link')\n"
+        "open('/proc/self/clear_refs', 'w').write('5')\n"
+        "before = kb('VmRSS')\n"
+        f"d = read_measured('{path}', plant)\n"
+        "print(d.n_samples, (kb('VmHWM') - before) * 1024)\n"
+    )
+    if not Path("/proc/self/clear_refs").exists():
+        pytest.skip("the peak memory of one stage is read from Linux's /proc/self (clear_refs, VmHWM)")
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, check=True)
+    rows, grown = (int(v) for v in proc.stdout.split())
+    assert rows == n
+    assert 0.2 * path.stat().st_size < grown <= 2 * path.stat().st_size, (grown, path.stat().st_size)
