@@ -40,7 +40,7 @@ def test_least_squares_filtered_and_energy_stds_cover_the_truth(system: str, see
 
 @pytest.mark.slow
 def test_iv_rls_and_physical_stds_cover_the_truth() -> None:
-    _check(_case("pendulum"), ("iv", "rls", "physical"), 30)
+    _check(_case("pendulum"), ("iv", "rls", "physical"), 20)
 
 
 @pytest.mark.slow
