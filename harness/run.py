@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Iterator
@@ -18,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import BaseParameters
 from dynamics.plant import Plant, load_plant
+from dynamics.prior import Prior, PriorSpec, make_prior
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
 from envs.dataset import Dataset, write_csv
@@ -80,10 +82,10 @@ def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any
 
 
 def _identify(
-    cfg: DictConfig, data: Dataset, model: ParameterModel, base: BaseParameters, design: FourierDesign
+    cfg: DictConfig, data: Dataset, model: ParameterModel, base: BaseParameters, design: FourierDesign, prior: Prior
 ) -> tuple[Estimate, Problem]:
     states = derive_states(data, cfg.identify.derivatives, **_derivative_options(cfg, design))
-    problem = build_problem(data, states, model, base)
+    problem = build_problem(data, states, model, base, prior=prior.theta)
     options = OmegaConf.to_container(cfg.estimator.options, resolve=True)
     return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
 
@@ -109,22 +111,27 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
 def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
     out = folder.path
     timing: dict[str, float] = {}
-    rng_design, rng_noise, rng_base, rng_val = np.random.default_rng(int(cfg.seed)).spawn(4)
+    rng_design, rng_noise, rng_base, rng_val, rng_prior = np.random.default_rng(int(cfg.seed)).spawn(5)
     with _timed(timing, "setup"):
         exp = experiment_from_config(cfg, rng_base, plant=loaded)
         plant, limits, model, base, sensor = exp.plant, exp.limits, exp.model, exp.base, exp.sensor
+        # the MJCF is the simulated truth: design limits, feedforward and fits use the prior model instead
+        prior = make_prior(model, PriorSpec.from_dict(dict(cfg.prior)), rng_prior, simulated=True)
+        nominal = dataclasses.replace(exp, plant=prior.plant)
     with _timed(timing, "excitation"):
-        design = design_from_config(cfg, exp, cfg.excitation.name, rng_design, progress=printer("excitation"))
+        design = design_from_config(cfg, nominal, cfg.excitation.name, rng_design, progress=printer("excitation"))
     with _timed(timing, "simulation"):
-        data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods))
+        data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods), nominal=prior.plant)
     with _timed(timing, "identification"):
-        est, problem = _identify(cfg, data, model, base, design)
+        est, problem = _identify(cfg, data, model, base, design, prior)
         beta_true = base.project(model.truth())
         comparison = compare_with_truth(est, beta_true)
         derived = _derived(plant, base, est)
     with _timed(timing, "validation"):
-        val_design = design_from_config(cfg, exp, "random", rng_val)
-        val_data = simulate_design(plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods))
+        val_design = design_from_config(cfg, nominal, "random", rng_val)
+        val_data = simulate_design(
+            plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods), nominal=prior.plant
+        )
         val_states = derive_states(val_data, cfg.identify.derivatives, **_derivative_options(cfg, val_design))
         rows = val_states.valid
         val_pred = predict_torque(model, base, est.beta, val_states.q[rows], val_states.dq[rows], val_states.ddq[rows])
@@ -159,6 +166,8 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
             },
             "coefficients": {"a": design.a, "b": design.b, "q0": design.q0},
         },
+        "prior": prior.summary(model.truth()),
+        "covariance": est.diagnostics.get("covariance", {"method": "none", "reason": "the estimator defines none"}),
         "base_parameters": [c.to_dict() for c in comparison],
         "estimate_names": list(est.names),
         "max_abs_z": float(max(abs(c.z) for c in comparison)),

@@ -107,9 +107,19 @@ def sensor_from_config(cfg: DictConfig, plant: Plant) -> SensorModel:
 
 
 def simulate_design(
-    plant: Plant, design: FourierDesign, cfg: DictConfig, sensor: SensorModel, rng: np.random.Generator, periods: float
+    plant: Plant,
+    design: FourierDesign,
+    cfg: DictConfig,
+    sensor: SensorModel,
+    rng: np.random.Generator,
+    periods: float,
+    *,
+    nominal: Plant | None = None,
 ) -> Dataset:
-    """Simulate `periods` periods of a design: tracked (position design) or applied open loop (torque design)."""
+    """Simulate `periods` periods of a design: tracked (position design) or applied open loop (torque design).
+
+    `nominal` is the model the tracking controller's feedforward and gains come from (None: `plant`).
+    """
     duration = periods * design.period_s
     if cfg.system.torque_driven:
         return simulate_open_loop(plant, design.torque, duration_s=duration, sensor=sensor, rng=rng)
@@ -119,6 +129,7 @@ def simulate_design(
         duration_s=duration,
         sensor=sensor,
         rng=rng,
+        nominal=nominal,
         bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
     )
 

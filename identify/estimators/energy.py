@@ -5,7 +5,9 @@ Over a window [t_a, t_b]:   int tau' dq dt = H(t_b) - H(t_a) + int (dissipated p
 with H = T + U the rigid body's kinetic and potential energy (Pinocchio's energy regressors) plus the
 rotor's 1/2 Ia dq^2, and the dissipated power sum_j dq_j E_j beta of the friction and offset columns. Each
 window gives one scalar equation, linear in the base parameters, needing only q and dq. The windows do not
-overlap, so the torque noise of different equations is independent and the plain sandwich holds.
+overlap, so white torque noise leaves the equations independent; states from filtered positions (and
+band-limited sensor noise) correlate neighbouring windows, which the HAC sandwich over the window sequence
+(`covariance.sandwich`, Andrews' lag) accounts for.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import pinocchio as pin
 from scipy import integrate
 
 from dynamics.errors import RankDeficientError
+from identify.estimators.covariance import sandwich
 from identify.estimators.signals import span, torque_sigma
 from identify.problem import Estimate, Problem
 
@@ -73,7 +76,11 @@ def energy(problem: Problem, *, window_s: float = 0.1) -> Estimate:
     if rank < A.shape[1]:
         raise RankDeficientError(f"the energy regressor has rank {rank} < {A.shape[1]}: poorly excited data")
     resid = y - A @ beta
-    bread = np.linalg.inv(A.T @ A)
-    cov = bread @ (A.T * resid**2) @ A @ bread
-    diagnostics = {"window_s": window_s, "windows": len(y), "energy_residual_std": float(resid.std())}
+    cov, info = sandwich(np.linalg.inv(A.T @ A), A * resid[:, None])
+    diagnostics = {
+        "window_s": window_s,
+        "windows": len(y),
+        "energy_residual_std": float(resid.std()),
+        "covariance": info.to_dict(),
+    }
     return Estimate("energy", problem.names, beta, cov, torque_sigma(problem, beta), diagnostics)

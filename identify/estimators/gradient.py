@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.estimators.filtered import batch_means_cov
+from identify.estimators.filtered import converged_cov
 from identify.estimators.recursive import history_indices
 from identify.estimators.signals import filtered_model, torque_sigma
 from identify.problem import Estimate, Problem
@@ -48,9 +48,9 @@ def gradient(
         history_points: snapshots of (time, beta) the history keeps.
 
     Returns:
-        The estimate, with the covariance of the filtered least-squares fit it settles on (batch-means
-        sandwich, as `filtered`: meaningful once the passes have converged); `diagnostics["history"]` =
-        {"time": (T,), "beta": (T, r)}.
+        The estimate, with the HAC covariance of the filtered least-squares fit it settles on (as
+        `filtered`), or None (reason in `diagnostics["covariance"]`) when it has not settled there;
+        `diagnostics["history"]` = {"time": (T,), "beta": (T, r)}.
     """
     if epochs < 1:
         raise ValueError(f"epochs must be >= 1, got {epochs}")
@@ -83,7 +83,5 @@ def gradient(
         beta = mean
     history = {"time": fm.time[0] + keep * dt, "beta": hist}
     diagnostics = {"omega": omega, "gain": gain, "epochs": epochs, "history": history}
-    settled = fm.settled
-    resid = y[settled] - np.einsum("knr,r->kn", psi[settled], beta)
-    cov = batch_means_cov(psi[settled], resid, block=int(np.ceil(5.0 / (omega * dt))))
+    cov, diagnostics["covariance"] = converged_cov(psi[fm.settled], y[fm.settled], beta)
     return Estimate("gradient", problem.names, beta, cov, torque_sigma(problem, beta), diagnostics)

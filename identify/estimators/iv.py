@@ -7,7 +7,7 @@ along a smooth reference drawn from the measured angles: Z carries no measuremen
 W. The estimate beta = (Z'W)^-1 Z'y is repeated with the new model until it settles.
 
 Simulating needs the full standard parameters: the independent ones follow from beta, the dependent ones
-(not identifiable) keep their nominal values from the MJCF (`standard_from_base`).
+(not identifiable, and without effect on the dynamics) keep the prior model's values (`standard_from_base`).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from dynamics.base import BaseParameters
 from dynamics.errors import RankDeficientError
 from dynamics.regressor import EFFECT_COLUMNS, ParameterModel
 from identify.derivatives import derive_states, excitation_bandwidth_hz
+from identify.estimators.covariance import sandwich, score
 from identify.estimators.least_squares import ols
 from identify.estimators.signals import span, torque_sigma
 from identify.problem import Estimate, Problem
@@ -141,9 +142,9 @@ def iv(
         substeps: integration steps per sample.
 
     Returns:
-        The estimate with the IV sandwich covariance (Z'W)^-1 Z' S Z (W'Z)^-1, S the per-joint residual
-        variance; diagnostics: iterations run, the relative change of each, where each round's instruments
-        came from ("simulation", or "reference" when the estimate's simulation diverged), and the
+        The estimate with the IV sandwich covariance (Z'W)^-1 M (W'Z)^-1, M the HAC long-run variance of the score sum_j
+        Z_kj' e_kj (`covariance.sandwich`); diagnostics: iterations run, the relative change of each, where each round's
+        instruments came from ("simulation", or "reference" when the estimate's simulation diverged), and the
         instruments' correlation with W.
     """
     W, y = problem.W, problem.y
@@ -153,7 +154,9 @@ def iv(
     rows = span(problem)
     sel = problem.rows[rows]
     reference = (ref.q[rows], ref.dq[rows], ref.ddq[rows])
-    nominal = problem.model.truth()
+    # the dependent parameters do not change the simulated dynamics (only K theta = beta does), so they carry
+    # no information about the answer; they come from the prior model where there is one
+    nominal = problem.prior if problem.prior is not None else problem.model.truth()
     beta = ols(problem).beta
     changes: list[float] = []
     sources: list[str] = []
@@ -183,14 +186,14 @@ def iv(
             break
     sigma = torque_sigma(problem, beta)
     Zf = Z.reshape(-1, r)
-    inv = np.linalg.inv(Zf.T @ A)
-    meat = np.einsum("knr,n,kns->rs", Z, sigma**2, Z)
-    cov = inv @ meat @ inv.T
+    resid = y - np.einsum("knr,r->kn", W, beta)
+    cov, info = sandwich(np.linalg.inv(Zf.T @ A), score(Z, resid))
     corr = float(np.sum(Zf * A) / (np.linalg.norm(Zf) * np.linalg.norm(A)))
     diagnostics = {
         "iterations": len(changes),
         "relative_change": changes,
         "instruments": sources,
         "instrument_correlation": corr,
+        "covariance": info.to_dict(),
     }
     return Estimate("iv", problem.names, beta, cov, sigma, diagnostics)

@@ -1,9 +1,11 @@
 """Ordinary and weighted least squares with parameter covariance.
 
-Both report the sandwich covariance with S the per-joint residual variance, which stays right when the joints'
-noise levels differ or the weights are not the inverse variances. WLS weights each joint's rows by
-1/sigma_j^2 (sigma_j from the residuals, iterated), so its covariance is (W' S^-1 W)^-1: the Cramer-Rao bound
-for Gaussian torque noise.
+Both report the HAC sandwich (`covariance.sandwich`): (W'VW)^-1 M (W'VW)^-1 with V the per-joint weights that
+produced the estimate and M the long-run variance of the score sum_j W_kj' v_j e_kj, so that the std stays
+right when the joints' noise levels differ, when they move together, and when the residuals are correlated
+in time (band-limited sensor noise, states from filtered positions). WLS weights each joint's rows by
+1/sigma_j^2 (sigma_j from the residuals of the previous solve, iterated); for white Gaussian torque noise its
+covariance tends to (W' S^-1 W)^-1, the Cramer-Rao bound.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from dynamics.errors import RankDeficientError
+from identify.estimators.covariance import sandwich, score
 from identify.problem import Estimate, Problem
 
 __all__ = ["ols", "wls"]
@@ -64,39 +67,37 @@ def _floor(sigma: np.ndarray, actuated: np.ndarray) -> np.ndarray:
     return np.maximum(out, 1e-6 * max(float(out.max()), 1e-300))
 
 
-def _sandwich(W: np.ndarray, weight: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Covariance of a weighted fit with per-joint weights `weight` when joint j's noise std is sigma_j.
-
-    (W'VW)^-1 W'V S V W (W'VW)^-1; it equals (W' S^-1 W)^-1, the Cramer-Rao bound, when V = S^-1.
-    """
-    bread = np.linalg.inv(np.einsum("knr,n,kns->rs", W, weight, W))
-    meat = np.einsum("knr,n,kns->rs", W, weight**2 * sigma**2, W)
-    return bread @ meat @ bread
+def _covariance(W: np.ndarray, y: np.ndarray, beta: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, dict]:
+    """HAC covariance of the fit that used per-joint weights `weight` (nv,) and gave `beta`."""
+    bread_inv = np.linalg.inv(np.einsum("knr,n,kns->rs", W, weight, W))
+    resid = y - np.einsum("knr,r->kn", W, beta)
+    cov, info = sandwich(bread_inv, score(W, resid, weight))
+    return cov, info.to_dict()
 
 
 def ols(problem: Problem) -> Estimate:
-    """Ordinary least squares over all rows, with the joint-heteroscedastic sandwich covariance."""
+    """Ordinary least squares over all rows, with the HAC sandwich covariance."""
     W, y = problem.W, problem.y
-    beta = _solve(W, y, np.ones(W.shape[1]))
-    sigma = _joint_sigma(W, y, beta)
-    return Estimate("ols", problem.names, beta, _sandwich(W, np.ones(W.shape[1]), sigma), sigma)
+    ones = np.ones(W.shape[1])
+    beta = _solve(W, y, ones)
+    cov, info = _covariance(W, y, beta, ones)
+    return Estimate("ols", problem.names, beta, cov, _joint_sigma(W, y, beta), {"covariance": info})
 
 
 def wls(problem: Problem, *, iterations: int = 3) -> Estimate:
-    """Weighted least squares with per-joint weights 1/sigma_j^2 re-estimated from the residuals."""
+    """Weighted least squares with per-joint weights 1/sigma_j^2 re-estimated from the residuals.
+
+    The covariance uses the weights the last solve used (those that produced the estimate), not the noise
+    levels re-estimated after it.
+    """
     if iterations < 1:
         raise ValueError(f"wls needs iterations >= 1, got {iterations}")
     W, y = problem.W, problem.y
     actuated = np.asarray(problem.data.actuated, dtype=bool)
     sigma = _floor(_joint_sigma(W, y, _solve(W, y, np.ones(W.shape[1]))), actuated)
     for _ in range(iterations):
-        beta = _solve(W, y, 1.0 / sigma**2)
+        weight = 1.0 / sigma**2
+        beta = _solve(W, y, weight)
         sigma = _floor(_joint_sigma(W, y, beta), actuated)
-    return Estimate(
-        "wls",
-        problem.names,
-        beta,
-        _sandwich(W, 1.0 / sigma**2, _joint_sigma(W, y, beta)),
-        sigma,
-        {"iterations": iterations},
-    )
+    cov, info = _covariance(W, y, beta, weight)
+    return Estimate("wls", problem.names, beta, cov, sigma, {"iterations": iterations, "covariance": info})

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.estimators.filtered import batch_means_cov
+from identify.estimators.filtered import converged_cov
 from identify.estimators.signals import filtered_model, torque_sigma
 from identify.problem import Estimate, Problem
 
@@ -45,9 +45,10 @@ def rls(
         history_points: how many snapshots of (time, beta, min eig P) the history keeps.
 
     Returns:
-        The estimate at the end of the data, with the batch-means sandwich covariance of the filtered fit
-        (P itself, in `diagnostics["P"]`, is the covariance only for white equation errors, which filtering
-        does not leave); `diagnostics["history"]` = {"time": (T,), "beta": (T, r), "min_eig_P": (T,)}.
+        The estimate at the end of the data, with the HAC covariance of the batch filtered fit it converges
+        to (None, with the reason in `diagnostics["covariance"]`, when it is not there yet; P itself, in
+        `diagnostics["P"]`, is the covariance only for white equation errors, which filtering does not leave);
+        `diagnostics["history"]` = {"time": (T,), "beta": (T, r), "min_eig_P": (T,)}.
     """
     fm = filtered_model(problem, omega=omega, settle_s=0.0)
     psi, y, time = fm.psi, fm.y, fm.time
@@ -70,8 +71,7 @@ def rls(
         if h < len(keep) and k == keep[h]:
             hist_beta[h], hist_eig[h] = beta, np.linalg.eigvalsh(P)[0]
             h += 1
-    resid = y - np.einsum("knr,r->kn", psi, beta)
-    cov = batch_means_cov(psi[fm.settled], resid[fm.settled], block=int(np.ceil(5.0 / (omega * dt))))
+    cov, info = converged_cov(psi[fm.settled], y[fm.settled], beta)
     history = {"time": time[keep], "beta": hist_beta, "min_eig_P": hist_eig}
-    diagnostics = {"omega": omega, "alpha": alpha, "p0": p0, "P": P, "history": history}
+    diagnostics = {"omega": omega, "alpha": alpha, "p0": p0, "P": P, "history": history, "covariance": info}
     return Estimate("rls", problem.names, beta, cov, torque_sigma(problem, beta), diagnostics)
