@@ -22,8 +22,9 @@ __all__ = ["Anomaly", "find_anomalies"]
 
 STILL_RANGE = 0.01  # a joint whose angle spans less than this in a file never moves there [rad]
 STUCK_FRACTION = 0.5  # a torque that is exactly zero on more than this share of rows is stuck at zero
-SATURATED_FRACTION = 0.005  # share of rows on the plateau at the largest |torque| that counts as saturation
-SATURATION_RUN = 5  # ... in runs of at least this many consecutive rows
+SATURATED_FRACTION = 0.002  # share of rows on the plateau at the largest |torque| that counts as saturation
+SATURATION_RUN = 3  # ... in runs of at least this many consecutive rows
+SATURATION_RATIO = 8.0  # ... and this many times the rows of the level just below it
 
 
 @dataclass(frozen=True)
@@ -102,13 +103,26 @@ def find_anomalies(datasets: list[Dataset]) -> list[Anomaly]:
 
 
 def _saturation(tau: np.ndarray) -> dict[str, float] | None:
-    """The plateau at the largest |torque| when it is long enough to be a clip, else None."""
-    peak = float(np.max(np.abs(tau)))
+    """The plateau at the largest |torque| when it is a clip, else None.
+
+    The top level (within 1.5 quanta or 0.1 % of the peak) of a clipped signal holds many more rows than the level
+    below it; the top of a smooth (even quantised) swing holds at most a few times as many (a sine spends
+    about 2.4 times as long in its top bin as in the next one). A clip is named when the top level holds
+    `SATURATION_RATIO` times the next one, at least `SATURATED_FRACTION` of the rows, in a run of at least
+    `SATURATION_RUN` rows.
+    """
+    mag = np.abs(tau)
+    peak = float(np.max(mag))
     if peak == 0:
         return None
-    tol = max(2.0 * _quantum(tau), 1e-3 * peak)
-    plateau = np.abs(np.abs(tau) - peak) <= tol
-    run = _longest_run(plateau)
-    if np.mean(plateau) >= SATURATED_FRACTION and run >= SATURATION_RUN:
-        return {"level_Nm": peak, "fraction": float(np.mean(plateau)), "longest_run": float(run)}
+    tol = max(1.5 * _quantum(tau), 1e-3 * peak)
+    top = mag >= peak - tol
+    below = int(np.count_nonzero((mag < peak - tol) & (mag >= peak - 2 * tol)))
+    run = _longest_run(top)
+    if (
+        np.mean(top) >= SATURATED_FRACTION
+        and run >= SATURATION_RUN
+        and np.count_nonzero(top) >= SATURATION_RATIO * max(below, 1)
+    ):
+        return {"level_Nm": peak, "fraction": float(np.mean(top)), "longest_run": float(run)}
     return None

@@ -244,7 +244,7 @@ MAX_LOAD_FRICTION = 0.5  # largest load-dependent friction coefficient (friction
 MAX_BACKLASH = 0.05  # widest backlash (lost motion) named [rad]
 MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/rad) [rad/(N m)]
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
-SMOOTH_COULOMB_SPEEDS = (0.1, 0.5)  # transition speeds of a smooth (tanh) Coulomb friction tried [rad/s]
+SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # transition speeds of a smooth (tanh) Coulomb friction tried [rad/s]
 COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # cycles per radian scanned for position-periodic torque [1/rad]
 
 

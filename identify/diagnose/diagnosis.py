@@ -537,25 +537,29 @@ def _with_confounding(
     if not findings:
         return findings
     sw = np.sqrt(weights)
-    flat = (X * sw[None, :, None]).reshape(-1, X.shape[2])
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
     chosen = {st.candidate.key for st in steps}
+    alternatives = [c for c in pool if c.key not in chosen]
+    blocks = [(X * sw[None, :, None]).reshape(-1, X.shape[2])]
+    offsets = [X.shape[2]]
+    for c in alternatives:
+        blocks.append((s.columns(c) * sw[None, :, None]).reshape(-1, len(c.parameter_names)))
+        offsets.append(offsets[-1] + blocks[-1].shape[1])
+    M = np.concatenate(blocks, axis=1)
+    gram = M.T @ M  # every share below is read from it: no further pass over the rows
     out = []
     for i, (f, st) in enumerate(zip(findings, steps, strict=True)):
         if st.candidate.effect == "rigid_body":
             out.append(f)
             continue
-        own = slice(int(start[i]), int(start[i + 1]))
-        head = flat[:, own.start]
-        others = np.delete(flat, np.arange(own.start, own.stop), axis=1)
-        base = np.linalg.qr(others)[0] if others.shape[1] else np.zeros((len(head), 0))
-        alone = _share_left(base, head)
+        head = int(start[i])
+        others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
+        alone = _share_left(gram, head, others)
         alts: list[dict[str, Any]] = []
-        for c in pool:
-            if c.key in chosen or (c.effect == st.candidate.effect and c.target == st.candidate.target):
+        for k, c in enumerate(alternatives):
+            if c.effect == st.candidate.effect and c.target == st.candidate.target:
                 continue
-            cols = (s.columns(c) * sw[None, :, None]).reshape(-1, len(c.parameter_names))
-            share = _share_left(np.linalg.qr(np.column_stack([others, cols]))[0], head)
+            share = _share_left(gram, head, others + list(range(offsets[k], offsets[k + 1])))
             if share < threshold < alone or (share < threshold and alone >= 1.5 * share):
                 alts.append({"effect": c.effect, "target": c.target, "independence": share})
         if alts:
@@ -572,14 +576,16 @@ def _with_confounding(
     return out
 
 
-def _share_left(basis: np.ndarray, col: np.ndarray) -> float:
-    norm = float(np.linalg.norm(col))
-    if norm == 0:
+def _share_left(gram: np.ndarray, head: int, span: list[int]) -> float:
+    """Share (in norm) of column `head` outside the span of columns `span`, from their Gram matrix."""
+    hh = float(gram[head, head])
+    if hh <= 0:
         return 0.0
-    v = col / norm
-    for _ in range(2):
-        v = v - basis @ (basis.T @ v)
-    return float(np.linalg.norm(v))
+    if not span:
+        return 1.0
+    g = gram[span, head]
+    explained = float(g @ np.linalg.lstsq(gram[np.ix_(span, span)], g, rcond=1e-12)[0])
+    return float(np.sqrt(max(1.0 - explained / hh, 0.0)))
 
 
 def _predict_records(calibrated: Plant, ext: Extension, records: list[_Record]) -> np.ndarray:

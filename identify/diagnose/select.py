@@ -151,26 +151,44 @@ def _span_free(basis: np.ndarray, cols: np.ndarray, tol: float = 1e-6) -> list[i
     return keep
 
 
-def _solve(A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    if np.any(coef < lo) or np.any(coef > hi):
-        scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)
-        coef = optimize.lsq_linear(A / scale, b, bounds=(lo * scale, hi * scale), method="bvls").x / scale
-    return coef
+def _solve_gram(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """argmin x'Gx - 2c'x within lo <= x <= hi (least squares in normal-equation form)."""
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(G), 1e-300))
+    Gs, cs = G * np.outer(scale, scale), c * scale
+    w, V = np.linalg.eigh(Gs)
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    R = (V[:, keep] * np.sqrt(w[keep])).T  # R'R = Gs on its range
+    d = (V[:, keep].T @ cs) / np.sqrt(w[keep])
+    x, *_ = np.linalg.lstsq(R, d, rcond=None)
+    if np.any(x * scale < lo) or np.any(x * scale > hi):
+        x = optimize.lsq_linear(R, d, bounds=(lo / scale, hi / scale), method="bvls").x
+    return x * scale
 
 
 def _scores(
     A: np.ndarray, b: np.ndarray, folds: np.ndarray, n_folds: int, lo: np.ndarray, hi: np.ndarray
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """(weighted RSS of the full bounded fit, (folds,) held-out weighted MSE per fold, (N,) full-fit residual)."""
-    coef = _solve(A, b, lo, hi)
-    e = b - A @ coef
+) -> tuple[float, np.ndarray]:
+    """(weighted RSS of the full bounded fit, (folds,) held-out weighted MSE per fold).
+
+    Every fit is solved from the folds' Gram matrices (p x p), so that a fold costs no pass over the rows.
+    """
+    p = A.shape[1]
+    G = np.empty((n_folds, p, p))
+    c = np.empty((n_folds, p))
+    bb = np.empty(n_folds)
+    size = np.empty(n_folds)
+    for f in range(n_folds):
+        rows = folds == f
+        Af, bf = A[rows], b[rows]
+        G[f], c[f], bb[f], size[f] = Af.T @ Af, Af.T @ bf, bf @ bf, np.count_nonzero(rows)
+    Gt, ct, bbt = G.sum(axis=0), c.sum(axis=0), bb.sum()
+    x = _solve_gram(Gt, ct, lo, hi)
+    rss = float(bbt - 2 * ct @ x + x @ Gt @ x)
     held = np.empty(n_folds)
     for f in range(n_folds):
-        test = folds == f
-        c = _solve(A[~test], b[~test], lo, hi)
-        held[f] = float(np.mean((b[test] - A[test] @ c) ** 2))
-    return float(e @ e), held, e
+        xf = _solve_gram(Gt - G[f], ct - c[f], lo, hi)
+        held[f] = float(bb[f] - 2 * c[f] @ xf + xf @ G[f] @ xf) / size[f]
+    return max(rss, 0.0), held
 
 
 def _bic(rss: float, n_obs: int, n_eff: float, p: int) -> float:
@@ -223,15 +241,12 @@ def select_effects(
     X = np.zeros((n, nv, 0)) if nuisance is None else nuisance
     lo, hi = np.full(X.shape[2], -np.inf), np.full(X.shape[2], np.inf)
     basis = np.linalg.qr(_flat(X, sw))[0] if X.shape[2] else np.zeros((n_obs, 0))
-    rss, held, e = (
-        _scores(_flat(X, sw), b, folds, n_folds, lo, hi)
-        if X.shape[2]
-        else (
-            float(b @ b),
-            np.array([float(np.mean(b[folds == f] ** 2)) for f in range(n_folds)]),
-            b,
-        )
-    )
+    if X.shape[2]:
+        rss, held = _scores(_flat(X, sw), b, folds, n_folds, lo, hi)
+        coef, *_ = np.linalg.lstsq(_flat(X, sw), b, rcond=None)
+        e = b - _flat(X, sw) @ coef
+    else:
+        rss, held, e = float(b @ b), np.array([float(np.mean(b[folds == f] ** 2)) for f in range(n_folds)]), b
     n_eff = n_obs / correlation_time(e.reshape(n, nv), row_record)
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
     while len(chosen) < options.max_findings:
@@ -251,7 +266,7 @@ def select_effects(
                 continue  # confounded with what is already chosen
             A = _flat(np.concatenate([X, cols[:, :, kept]], axis=2), sw)
             lo_c, hi_c = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
-            rss_c, held_c, _ = _scores(A, b, folds, n_folds, lo_c, hi_c)
+            rss_c, held_c = _scores(A, b, folds, n_folds, lo_c, hi_c)
             bic_c = _bic(rss_c, n_obs, n_eff, A.shape[1])
             gains = 1.0 - held_c / np.maximum(held, 1e-300)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
