@@ -89,10 +89,10 @@ def test_unknown_effect_fails_before_any_work(csv_files: list[Path], tmp_path: P
 
 
 def test_band_comes_from_the_data_config_unless_set() -> None:
-    # the DFKI arm's 4 Hz band belongs to its data config: `sysid-diagnose data=dfki_double_pendulum` needs no
+    # the DFKI arm's 5 Hz band belongs to its data config: `sysid-diagnose data=dfki_double_pendulum` needs no
     # other override, and `diagnose.band_hz` still wins
     dfki = compose_config(["system=two_link", "data=dfki_double_pendulum"], config_name="diagnose")
-    assert cli._band_hz(dfki) == 4.0
+    assert cli._band_hz(dfki) == 5.0
     assert list(dfki.data.validation) == ["trajectory_01.csv"]
     override = compose_config(
         ["system=two_link", "data=dfki_double_pendulum", "diagnose.band_hz=2"], config_name="diagnose"

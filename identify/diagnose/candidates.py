@@ -16,6 +16,21 @@ times unknown coefficients (one group of columns per effect and joint or body):
                       ancestor joints of j, parallel axes)                               joint `armature` (exact)
     payload           the body's identifiable inertial cols    added mass (kg)            body `inertial`
     rigid_body        the base rigid-body columns              RMS torque change (N m)    every `inertial`
+    cogging           sin(n q_j), cos(n q_j) (actuated only)   amplitude (N m)            custom numeric [n, a, b]
+    stribeck_friction sign(dq_j) exp(-(dq_j / vs)^2)           breakaway excess Fs (N m)  custom numeric [Fs, vs]
+    smooth_coulomb_   tanh(dq_j / vt)                          Fc (N m)                   custom numeric [Fc, vt]
+      friction
+    load_friction     |tau_nominal_j| sign(dq_j) (actuated)    mu (1)                     custom numeric [mu]
+    backlash          -d tau_nominal/d q_j sign(dq_j)          lost motion b (rad)        custom numeric [b]
+    joint_elasticity  -d tau_nominal/d q_j tau_nominal_j       stiffness k (N m/rad)      custom numeric [k]
+                      (actuated only)
+
+Physical ranges (`Candidate.bounds`, constants below): a joint's total armature, damping, frictionloss and
+stiffness >= 0; 0 <= delay <= `MAX_DELAY_S`; gain within 1 +- `GAIN_BAND`; |joint offset| <= `MAX_JOINT_OFFSET`;
+added payload mass >= 0; Stribeck and smooth Coulomb amplitudes >= 0; 0 <= mu <= `MAX_LOAD_FRICTION`;
+0 <= b <= `MAX_BACKLASH`; k >= 1 / `MAX_COMPLIANCE`. The cogging period is the one the training residual shows
+(`cogging_harmonic` scans `COGGING_HARMONICS`), the Stribeck and transition speeds a small grid (each a
+candidate of its own, `variant`).
 
 `rotor_coupling` is the rotor of the motor that drives joint j, its stator on the parent link: the rotor turns
 at (the parent's angular velocity + gr dq_j), so its kinetic energy 1/2 Ir (w_parent + gr dq_j)^2 adds the
