@@ -84,7 +84,7 @@ def test_failure_leaves_nothing_half_written(
 
 def test_unknown_effect_fails_before_any_work(csv_files: list[Path], tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="valid choices"):
-        cli.run(_config(csv_files, tmp_path, "diagnose.effects=[backlash]"))
+        cli.run(_config(csv_files, tmp_path, "diagnose.effects=[hysteresis]"))
     assert not any(tmp_path.iterdir())
 
 

@@ -331,14 +331,14 @@ def hidden_effect_table(seed: int = 0) -> list[dict[str, Any]]:
                 "nominal_rms": dg.models["nominal"]["torque_rms"][name],
                 "calibrated_rms": dg.models["calibrated"]["torque_rms"][name],
                 "joint": name,
-                "ok": _ok(expect, truth, dg),
+                "ok": _ok(expect, truth, dg, plant),
             }
         )
         print(rows[-1]["system"], rows[-1]["truth"], rows[-1]["named_first"], dg.verdict, rows[-1]["ok"], flush=True)
     return rows
 
 
-def _ok(expect: str, truth: Injected | None, dg: Any) -> bool:
+def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
     if expect == "clean":
         return bool(dg.verdict == "no_discrepancy")
     if expect == "unexplained":
@@ -348,7 +348,8 @@ def _ok(expect: str, truth: Injected | None, dg: Any) -> bool:
         return False
     f = dg.findings[0]
     names = {(f.effect, f.target)} | {(c["effect"], c["target"]) for c in f.confounded_with}
-    return (truth.effect, truth.joint) in names and dg.verdict in ("explained", "unexplained_structure")
+    target = plant.body_names[plant.joint_names.index(truth.joint)] if truth.effect == "payload" else truth.joint
+    return (truth.effect, target) in names and dg.verdict in ("explained", "unexplained_structure")
 
 
 def hidden_markdown(rows: list[dict[str, Any]]) -> str:
