@@ -116,7 +116,7 @@ def lofo_table(session: str) -> dict[str, Any]:
                 "best_authors": best.tolist(),
                 "wins": [bool(c <= b) for c, b in zip(rms["calibrated"], best, strict=True)],
                 "verdict": dg.verdict,
-                "findings": [f"{f.effect} {f.target}".strip() for f in dg.findings],
+                "findings": [f.name for f in dg.findings],
                 "seconds": time.perf_counter() - start,
             }
         )

@@ -159,7 +159,8 @@ class Diagnosis:
         frictionloss_mapping: per joint, MuJoCo's frictionloss against the fitted Coulomb term.
         calibrated_xml: the calibrated MJCF text.
         notes: anything the caller should know (clipped values, unidentifiable directions).
-        series: validation time series for the recording (not in to_dict).
+        series: validation time series for the recording (not in to_dict); `validation_records` holds, per
+            validation record, its source, time and the measured and every model's torque in the analysis band.
         remaining: per joint, the signature of what the calibrated model leaves on the validation records
             (spectral peaks, correlation with q, dq, sign(dq), ddq, position-periodic content).
         anomalies: data anomalies named before fitting (`anomalies.find_anomalies`).
@@ -400,6 +401,7 @@ def diagnose(
                 models[name]["simulation_error"] = _per_joint(names, sims[name])
         friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
         series = _series(plant, calibrated, ext, va[0], preds, window_s)
+        series["validation_records"] = _band_series(va, s_va, preds)
 
     fs = 1.0 / va[0].data.dt
     # an unactuated joint has no torque sensor: its residual (the torque the model needs there, which must be
@@ -760,6 +762,22 @@ def _findings(
             )
         )
         offset += k
+    return out
+
+
+def _band_series(records: list[_Record], s: Signals, preds: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    """Per validation record: time [s] and the measured and every model's torque in the analysis band [N m]."""
+    out = []
+    for r, rec in enumerate(records):
+        rows = s.record == r
+        out.append(
+            {
+                "source": rec.data.source,
+                "time": s.time[rows],
+                "tau_measured": s.smooth(s.tau)[rows],
+                **{f"tau_{name}": s.smooth(pred)[rows] for name, pred in preds.items()},
+            }
+        )
     return out
 
 
