@@ -139,8 +139,8 @@ def fit_bounded(
         scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)
         res = optimize.lsq_linear(A / scale, b, bounds=(lo * scale, hi * scale), method="bvls")
         coef = res.x / scale
-        span = np.maximum(np.abs(hi - lo), 1.0)
-        flags = np.where(coef <= lo + 1e-9 * span, -1, np.where(coef >= hi - 1e-9 * span, 1, 0))
+        tol = 1e-9 * np.maximum(np.abs(coef), 1.0)
+        flags = np.where(np.isfinite(lo) & (coef <= lo + tol), -1, np.where(np.isfinite(hi) & (coef >= hi - tol), 1, 0))
     e = b - A @ coef
     per_row = e.reshape(n, nv)
     tau = correlation_time(per_row, record)
