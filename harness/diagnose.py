@@ -8,6 +8,7 @@ finished, and a failure while writing removes what was written: a run directory 
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -68,7 +69,7 @@ def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceMo
     out: dict[str, ReferenceModel] = {}
     for f in files:
         p = load_author_model(f)
-        name = "authors_" + f.stem.replace("design_C.0_model_", "")
+        name = "authors_" + re.sub(r"^design_.*?_model_", "", f.stem)  # design_C.1_model_2.0 -> authors_2.0
         out[name] = ReferenceModel(torque=partial(author_torque, p), accel=partial(author_accel, p))
     return out
 
@@ -230,9 +231,15 @@ def _write_outputs(
 
 
 def _findings_markdown(result: Diagnosis) -> str:
-    lines = [f"**verdict: {result.verdict}**", "", "| effect | where | value | std | unit |", "|---|---|---:|---:|---|"]
+    lines = [f"**verdict: {result.verdict}** ({result.verdict_reason})", ""]
+    lines += [f"- anomaly: {a['kind']} {a['joint']} in {Path(a['source']).name}" for a in result.anomalies]
+    lines += [
+        "",
+        "| effect (or confounded alternatives) | where | value | std | unit | bound |",
+        "|---|---|---:|---:|---|---|",
+    ]
     for f in result.findings:
-        lines.append(f"| {f.effect} | {f.target} | {f.value:.5g} | {f.std:.2g} | {f.unit} |")
+        lines.append(f"| {f.name} | {f.target} | {f.value:.5g} | {f.std:.2g} | {f.unit} | {f.at_bound or ''} |")
     lines += ["", "| model | joint | torque RMS [N m] | simulation error [rad] |", "|---|---|---:|---:|"]
     for model, m in result.models.items():
         for j, v in m["torque_rms"].items():
@@ -242,10 +249,15 @@ def _findings_markdown(result: Diagnosis) -> str:
 
 
 def _summary(payload: dict[str, Any]) -> str:
-    lines = [f"{payload['system']}: {payload['verdict']}"]
+    lines = [f"{payload['system']}: {payload['verdict']} ({payload.get('verdict_reason', '')})"]
+    for a in payload.get("anomalies", []):
+        lines.append(f"  anomaly: {a['kind']} {a['joint']} in {Path(a['source']).name}")
     for f in payload["findings"]:
         where = f.get("joint") or f.get("body") or ""
-        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {f['std'] or float('nan'):.2g} {f['unit']}")
+        std = f["std"] if f["std"] is not None else float("nan")
+        bound = f" (at its {f['at_bound']} bound)" if f.get("at_bound") else ""
+        alts = "".join(f" or {c['effect']} {c['target']}".rstrip() for c in f.get("confounded_with", []))
+        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {std:.2g} {f['unit']}{bound}{alts}")
     for model, m in payload["models"].items():
         tau = ", ".join(f"{j} {v:.4f}" for j, v in m["torque_rms"].items())
         sim = ", ".join(f"{j} {v:.4f}" for j, v in m.get("simulation_error", {}).items())

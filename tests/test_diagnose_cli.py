@@ -85,15 +85,15 @@ def test_failure_leaves_nothing_half_written(
 
 def test_unknown_effect_fails_before_any_work(csv_files: list[Path], tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="valid choices"):
-        cli.run(_config(csv_files, tmp_path, "diagnose.effects=[backlash]"))
+        cli.run(_config(csv_files, tmp_path, "diagnose.effects=[hysteresis]"))
     assert not any(tmp_path.iterdir())
 
 
 def test_band_comes_from_the_data_config_unless_set() -> None:
-    # the DFKI arm's 4 Hz band belongs to its data config: `sysid-diagnose data=dfki_double_pendulum` needs no
+    # the DFKI arm's 5 Hz band belongs to its data config: `sysid-diagnose data=dfki_double_pendulum` needs no
     # other override, and `diagnose.band_hz` still wins
     dfki = compose_config(["system=two_link", "data=dfki_double_pendulum"], config_name="diagnose")
-    assert cli._band_hz(dfki) == 4.0
+    assert cli._band_hz(dfki) == 5.0
     assert list(dfki.data.validation) == ["trajectory_01.csv"]
     override = compose_config(
         ["system=two_link", "data=dfki_double_pendulum", "diagnose.band_hz=2"], config_name="diagnose"

@@ -1,6 +1,9 @@
-"""The diagnosis on the DFKI double pendulum's real logs: fit on some files, validate on the others, and
+"""The diagnosis on the DFKI double pendulum's real logs: fit on some files, validate on another, and
 compare with the nominal MJCF, the rigid-body refit and the authors' own identified models on the same
-validation files. Skipped when ../shared/data is absent."""
+validation file. Skipped when ../shared/data is absent.
+
+One split only, for speed: whether the calibrated model beats the authors' is a claim over every
+leave-one-file-out split, measured by `python -m bench diagnose` (bench/diagnose.md), not pinned here."""
 
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ def payload(tmp_path_factory: pytest.TempPathFactory) -> dict:
         [
             "system=two_link",
             "data=dfki_double_pendulum",
-            # the data config's own split and band (fit on 00, 02, 05, 12; validate on 01, 4 Hz): only the
+            # the data config's own split and band (fit on 00, 02, 05, 12; validate on 01, 5 Hz): only the
             # folder is overridden, so the test reads ../shared wherever it runs from
             f"data.path=[{','.join(str(f) for f in files)}]",
             f"output_dir={out}",
@@ -45,12 +48,14 @@ def test_every_model_is_reported_on_the_validation_files(payload: dict) -> None:
     assert [Path(p["source"]).name for p in payload["split"]["validation"]] == ["trajectory_01.csv"]
     train = sorted(Path(p["source"]).name for p in payload["split"]["train"])
     assert train == [f"trajectory_{n}.csv" for n in ("00", "02", "05", "12")]
-    assert payload["info"]["band_hz"] == 4.0
+    assert payload["info"]["band_hz"] == 5.0
     for model in ("nominal", "rigid_body_refit", "calibrated", *AUTHORS):
         m = payload["models"][model]
         assert set(m["torque_rms"]) == {"shoulder", "elbow"}
         assert set(m["simulation_error"]) == {"shoulder", "elbow"}
-    assert payload["verdict"] == "explained"
+    assert payload["verdict"] in ("explained", "unexplained_structure")
+    if payload["verdict"] == "unexplained_structure":
+        assert payload["remaining"], "what remains must be described"
 
 
 @pytest.mark.slow
@@ -71,11 +76,31 @@ def test_calibrated_beats_the_nominal_mjcf_on_every_joint(payload: dict) -> None
 
 
 @pytest.mark.slow
-def test_calibrated_is_at_most_the_authors_models_on_every_joint(payload: dict) -> None:
-    # the authors fitted their models on all fourteen files of the session, the validation file among them
-    models = payload["models"]
-    for joint in ("shoulder", "elbow"):
-        calibrated = models["calibrated"]["torque_rms"][joint]
-        for name in AUTHORS:
-            assert calibrated <= models[name]["torque_rms"][joint], (joint, name, models)
-        assert models["calibrated"]["simulation_error"][joint] <= models["authors_3.0"]["simulation_error"][joint]
+def test_no_finding_on_real_data_is_outside_its_physical_range(payload: dict) -> None:
+    for f in payload["findings"]:
+        for p in f["parameters"]:
+            assert p["at_bound"] is not None or p["std"] is not None
+        if f["effect"] == "time_delay":
+            assert 0 <= f["value"] <= 0.02, f
+        if f["effect"] == "torque_gain":
+            assert 0.7 <= f["value"] <= 1.3, f
+
+
+def test_c1_config_reads_the_rebuild_with_the_same_nominal_model(shared_data: Path) -> None:
+    """design C.1 is diagnosed against `two_link` (the same documented design); its config reads every shared
+    file, holds one out by name and carries the lab's models for this build."""
+    from omegaconf import OmegaConf
+
+    from dynamics.plant import load_plant
+    from envs.measured import read_many
+
+    cfg = compose_config(["system=two_link", "data=dfki_double_pendulum_c1"], config_name="diagnose")
+    paths = [Path(str(p)).resolve() for p in cfg.data.path]
+    folder = shared_data / "dfki_double_pendulum_c1"
+    assert sorted(p.name for p in paths) == sorted(p.name for p in folder.glob("*.csv"))
+    assert set(cfg.data.validation) <= {p.name for p in paths}
+    assert cfg.system.name == "two_link" and cli._band_hz(cfg) == 5.0
+    data = read_many(paths, load_plant("two_link"), columns=OmegaConf.to_container(cfg.data.columns))  # type: ignore[arg-type]
+    assert all(d.n_samples > 2500 for d in data)
+    refs = cli.reference_models("auto", paths)
+    assert {"authors_1.0", "authors_2.0"} <= set(refs)

@@ -16,6 +16,21 @@ times unknown coefficients (one group of columns per effect and joint or body):
                       ancestor joints of j, parallel axes)                               joint `armature` (exact)
     payload           the body's identifiable inertial cols    added mass (kg)            body `inertial`
     rigid_body        the base rigid-body columns              RMS torque change (N m)    every `inertial`
+    cogging           sin(n q_j), cos(n q_j) (actuated only)   amplitude (N m)            custom numeric [n, a, b]
+    stribeck_friction sign(dq_j) exp(-(dq_j / vs)^2)           breakaway excess Fs (N m)  custom numeric [Fs, vs]
+    smooth_coulomb_   tanh(dq_j / vt)                          Fc (N m)                   custom numeric [Fc, vt]
+      friction
+    load_friction     |tau_nominal_j| sign(dq_j) (actuated)    mu (1)                     custom numeric [mu]
+    backlash          -d tau_nominal/d q_j sign(dq_j)          lost motion b (rad)        custom numeric [b]
+    joint_elasticity  -d tau_nominal/d q_j tau_nominal_j       stiffness k (N m/rad)      custom numeric [k]
+                      (actuated only)
+
+Physical ranges (`Candidate.bounds`, constants below): a joint's total armature, damping, frictionloss and
+stiffness >= 0; 0 <= delay <= `MAX_DELAY_S`; gain within 1 +- `GAIN_BAND`; |joint offset| <= `MAX_JOINT_OFFSET`;
+added payload mass >= 0; Stribeck and smooth Coulomb amplitudes >= 0; 0 <= mu <= `MAX_LOAD_FRICTION`;
+0 <= b <= `MAX_BACKLASH`; k >= 1 / `MAX_COMPLIANCE`. The cogging period is the one the training residual shows
+(`cogging_harmonic` scans `COGGING_HARMONICS`), the Stribeck and transition speeds a small grid (each a
+candidate of its own, `variant`).
 
 `rotor_coupling` is the rotor of the motor that drives joint j, its stator on the parent link: the rotor turns
 at (the parent's angular velocity + gr dq_j), so its kinetic energy 1/2 Ir (w_parent + gr dq_j)^2 adds the
@@ -44,7 +59,16 @@ from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset
 from identify.derivatives import States
 
-__all__ = ["CANDIDATE_EFFECTS", "Candidate", "Signals", "candidates", "rotor_chain", "signals", "stack_signals"]
+__all__ = [
+    "CANDIDATE_EFFECTS",
+    "Candidate",
+    "Signals",
+    "candidates",
+    "cogging_harmonic",
+    "rotor_chain",
+    "signals",
+    "stack_signals",
+]
 
 
 @dataclass(frozen=True)
@@ -152,8 +176,14 @@ class Candidate:
         parameter_names: (k,) names of its coefficients.
         build: signals -> (N, nv, k) columns.
         value: (coef (k,), cov (k, k), columns (N, nv, k)) -> (value, std) in `unit`.
-        minimum: smallest physical value (a joint's damping, friction, armature or stiffness cannot end
-            below zero); a fit below it rejects the candidate rather than forcing a wrong name.
+        bounds: per coefficient, its physical range (lower, upper) in coefficient units (a joint's total
+            damping, friction, armature or stiffness cannot end below zero, a delay is causal and short,
+            a gain lies in a band around 1, an added mass is positive); empty: unbounded. Every fit stays
+            inside it, and a value that ends on a bound is reported as such.
+        variant: the shape parameter that tells candidates of one effect and joint apart (a Stribeck
+            speed, a cogging period), "" where there is one.
+        note: what the effect is physically and how the calibrated MJCF holds it (for effects MuJoCo has
+            no attribute for).
     """
 
     effect: str
@@ -163,11 +193,35 @@ class Candidate:
     parameter_names: tuple[str, ...]
     build: Callable[[Signals], np.ndarray]
     value: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[float, float]]
-    minimum: float = -np.inf
+    bounds: tuple[tuple[float, float], ...] = ()
+    note: str = ""
+    variant: str = ""
+
+    @property
+    def native(self) -> bool:
+        """True where MuJoCo has an attribute for the effect (the selection prefers those on a tie)."""
+        return self.counterpart != "custom numeric"
+
+    def __post_init__(self) -> None:
+        if self.bounds and len(self.bounds) != len(self.parameter_names):
+            raise ValueError(f"{self.key}: {len(self.bounds)} bounds for {len(self.parameter_names)} coefficients")
+        if any(lo > hi for lo, hi in self.bounds):
+            raise ValueError(f"{self.key}: a lower bound above its upper bound in {self.bounds}")
 
     @property
     def key(self) -> str:
-        return f"{self.effect}:{self.target}" if self.target else self.effect
+        key = f"{self.effect}:{self.target}" if self.target else self.effect
+        return f"{key}@{self.variant}" if self.variant else key
+
+    @property
+    def lower(self) -> np.ndarray:
+        """(k,) lower bounds of the coefficients."""
+        return np.array([b[0] for b in self.bounds]) if self.bounds else np.full(len(self.parameter_names), -np.inf)
+
+    @property
+    def upper(self) -> np.ndarray:
+        """(k,) upper bounds of the coefficients."""
+        return np.array([b[1] for b in self.bounds]) if self.bounds else np.full(len(self.parameter_names), np.inf)
 
 
 def _first(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[float, float]:
@@ -198,8 +252,20 @@ def _own_row(nv: int, j: int, signal: Callable[[Signals], np.ndarray]) -> Callab
     return build
 
 
+MAX_DELAY_S = 0.02  # longest sensor delay named [s]: a current-loop or bus delay is a few ms; beyond, a model error
+GAIN_BAND = 0.3  # a torque gain (reported / applied) is named within 1 +- this; beyond, the torque constant is wrong
+MAX_JOINT_OFFSET = 0.2  # largest encoder zero offset named [rad]
+MAX_LOAD_FRICTION = 0.5  # largest load-dependent friction coefficient (friction torque / load torque) [1]
+MAX_BACKLASH = 0.05  # widest backlash (lost motion) named [rad]
+MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/rad) [rad/(N m)]
+STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
+SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # transition speeds of a smooth (tanh) Coulomb friction tried [rad/s]
+COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # cycles per radian scanned for position-periodic torque [1/rad]
+
+
 def _joint_effects(plant: Plant) -> list[Candidate]:
     nv, out = plant.nv, []
+    inf = np.inf
     table: list[tuple[str, str, str, str, Callable[[Signals, int], np.ndarray], bool]] = [
         ("armature", "kg m^2", "joint armature", "Ia", lambda s, j: s.ddq[:, j], False),
         ("viscous_friction", "N m s/rad", "joint damping", "Fv", lambda s, j: s.dq[:, j], False),
@@ -215,10 +281,218 @@ def _joint_effects(plant: Plant) -> list[Candidate]:
                 continue
             value = _gain if effect == "torque_gain" else _first
             build = _own_row(nv, j, lambda s, j=j, f=signal: f(s, j))  # type: ignore[misc]
-            minimum = -float(nominal[effect][j]) if effect in nominal else (0.0 if effect == "torque_gain" else -np.inf)
-            out.append(Candidate(effect, name, unit, counterpart, (f"{symbol}{j + 1}",), build, value, minimum))
+            if effect in nominal:
+                bounds = ((-float(nominal[effect][j]), inf),)  # the joint's total value stays >= 0
+            elif effect == "torque_gain":
+                bounds = ((-GAIN_BAND, GAIN_BAND),)
+            elif effect == "time_delay":
+                bounds = ((0.0, MAX_DELAY_S),)  # causal: the sensor reports after the torque acts
+            else:
+                bounds = ((-inf, inf),)
+            out.append(Candidate(effect, name, unit, counterpart, (f"{symbol}{j + 1}",), build, value, bounds))
         out.append(_stiffness(plant, j))
         out.append(_joint_offset(plant, j))
+    return out
+
+
+def _shape_friction(plant: Plant) -> list[Candidate]:
+    """Velocity-dependent friction shapes: Stribeck (breakaway above Coulomb at low speed) and smooth Coulomb."""
+    out = []
+    for j, name in enumerate(plant.joint_names):
+        for vs in STRIBECK_SPEEDS:
+
+            def stribeck(s: Signals, j: int = j, vs: float = vs) -> np.ndarray:
+                return np.sign(s.dq[:, j]) * np.exp(-((s.dq[:, j] / vs) ** 2))
+
+            note = (
+                f"Stribeck friction: an extra Fs sign(dq) exp(-(dq/{vs:g})^2) at low speed (breakaway). MuJoCo has "
+                "no velocity-shaped friction: written as numeric sysid_stribeck_friction_<joint> = [Fs, vs]"
+            )
+            out.append(
+                Candidate(
+                    "stribeck_friction",
+                    name,
+                    "N m",
+                    "custom numeric",
+                    (f"Fs{j + 1}",),
+                    _own_row(plant.nv, j, stribeck),
+                    _first,
+                    ((0.0, np.inf),),
+                    note,
+                    f"{vs:g}",
+                )
+            )
+        for vt in SMOOTH_COULOMB_SPEEDS:
+
+            def smooth(s: Signals, j: int = j, vt: float = vt) -> np.ndarray:
+                return np.tanh(s.dq[:, j] / vt)
+
+            note = (
+                f"smooth Coulomb friction Fc tanh(dq/{vt:g}); written as numeric sysid_smooth_coulomb_<joint> = "
+                "[Fc, vt] (MuJoCo's frictionloss is a constraint with its own transition)"
+            )
+            out.append(
+                Candidate(
+                    "smooth_coulomb_friction",
+                    name,
+                    "N m",
+                    "custom numeric",
+                    (f"Fct{j + 1}",),
+                    _own_row(plant.nv, j, smooth),
+                    _first,
+                    ((0.0, np.inf),),
+                    note,
+                    f"{vt:g}",
+                )
+            )
+    return out
+
+
+def _load_friction(plant: Plant) -> list[Candidate]:
+    """Friction that grows with the transmitted load: mu |tau_nominal_j| sign(dq_j) (gear and bearing friction)."""
+    out = []
+    for j, name in enumerate(plant.joint_names):
+        if not plant.actuated[j]:
+            continue
+
+        def build(s: Signals, j: int = j) -> np.ndarray:
+            return np.abs(s.tau_nominal[:, j]) * np.sign(s.dq[:, j])
+
+        note = "load-dependent friction mu |tau| sign(dq); numeric sysid_load_friction_<joint> = [mu]"
+        out.append(
+            Candidate(
+                "load_friction",
+                name,
+                "1",
+                "custom numeric",
+                (f"mu{j + 1}",),
+                _own_row(plant.nv, j, build),
+                _first,
+                ((0.0, MAX_LOAD_FRICTION),),
+                note,
+            )
+        )
+    return out
+
+
+def _compliance(plant: Plant) -> list[Candidate]:
+    """Backlash and transmission elasticity, seen by a motor-side encoder: the link lags the reported angle.
+
+    Backlash (lost motion b, in contact): q_link = q - (b/2) sign(dq_j); elasticity (stiffness k):
+    q_link = q - tau_j / k. To first order both are a joint offset that switches with the direction of motion
+    or grows with the load, so their columns are the joint-offset column times sign(dq_j) or tau_j.
+    """
+    out = []
+    for j, name in enumerate(plant.joint_names):
+
+        def backlash(s: Signals, j: int = j) -> np.ndarray:
+            return -s.dtau_dq[:, :, j : j + 1] * np.sign(s.dq[:, j])[:, None, None]
+
+        def elastic(s: Signals, j: int = j) -> np.ndarray:
+            return -s.dtau_dq[:, :, j : j + 1] * s.tau_nominal[:, j][:, None, None]
+
+        out.append(
+            Candidate(
+                "backlash",
+                name,
+                "rad",
+                "custom numeric",
+                (f"bl{j + 1}",),
+                backlash,
+                _backlash,
+                ((0.0, MAX_BACKLASH / 2),),
+                "backlash: the link lags the motor by half the lost motion b, switching side with the direction of "
+                "motion; numeric sysid_backlash_<joint> = [b]",
+            )
+        )
+        if plant.actuated[j]:
+            out.append(
+                Candidate(
+                    "joint_elasticity",
+                    name,
+                    "N m/rad",
+                    "custom numeric",
+                    (f"c{j + 1}",),
+                    elastic,
+                    _stiffness_value,
+                    ((0.0, MAX_COMPLIANCE),),
+                    "transmission elasticity: the link angle is the reported one less tau/k; numeric "
+                    "sysid_joint_elasticity_<joint> = [k]",
+                )
+            )
+    return out
+
+
+def _backlash(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[float, float]:
+    return 2.0 * float(coef[0]), 2.0 * float(np.sqrt(max(cov[0, 0], 0.0)))
+
+
+def _stiffness_value(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[float, float]:
+    """k = 1 / c with its delta-method std (inf for a rigid transmission)."""
+    c, sd = float(coef[0]), float(np.sqrt(max(cov[0, 0], 0.0)))
+    if c <= 0:
+        return float("inf"), float("nan")
+    return 1.0 / c, sd / c**2
+
+
+def cogging_harmonic(s: Signals, j: int) -> tuple[float, float]:
+    """The position-periodic torque that best explains joint j's residual row: (cycles per rad n, amplitude).
+
+    Scans `COGGING_HARMONICS`: the residual in the analysis band is fitted by a sin(n q_j) + b cos(n q_j)
+    (in the same band, with a constant); the n explaining the most variance wins.
+    """
+    r = s.residual[:, j]
+    best = (float(COGGING_HARMONICS[0]), 0.0, -1.0)
+    for n in COGGING_HARMONICS:
+        cols = s.smooth(np.column_stack([np.sin(n * s.q[:, j]), np.cos(n * s.q[:, j]), np.ones(s.n_samples)]))
+        c, *_ = np.linalg.lstsq(cols, r, rcond=None)
+        explained = float(np.sum((cols @ c) ** 2))
+        if explained > best[2]:
+            best = (float(n), float(np.hypot(c[0], c[1])), explained)
+    return best[0], best[1]
+
+
+def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:
+    """Position-periodic torque (cogging, commutation ripple) per actuated joint, at the period the training
+    residual shows (`cogging_harmonic`); without training signals, none."""
+    if train is None:
+        return []
+    out = []
+    for j, name in enumerate(plant.joint_names):
+        if not plant.actuated[j] or np.ptp(train.q[:, j]) < 1e-3:
+            continue
+        n, _ = cogging_harmonic(train, j)
+
+        def build(s: Signals, j: int = j, n: float = n) -> np.ndarray:
+            out = np.zeros((s.n_samples, plant.nv, 2))
+            out[:, j, 0], out[:, j, 1] = np.sin(n * s.q[:, j]), np.cos(n * s.q[:, j])
+            return out
+
+        def amplitude(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[float, float]:
+            a = float(np.hypot(coef[0], coef[1]))
+            if a == 0:
+                return 0.0, float("nan")
+            grad = coef[:2] / a
+            return a, float(np.sqrt(max(grad @ cov[:2, :2] @ grad, 0.0)))
+
+        note = (
+            f"position-periodic torque (cogging) a sin(n q) + b cos(n q), n = {n:g} cycles/rad (period "
+            f"{2 * np.pi / n:.4g} rad); MuJoCo has no such attribute: numeric sysid_cogging_<joint> = [n, a, b]"
+        )
+        out.append(
+            Candidate(
+                "cogging",
+                name,
+                "N m",
+                "custom numeric",
+                (f"cs{j + 1}", f"cc{j + 1}"),
+                build,
+                amplitude,
+                (),
+                note,
+                f"{n:g}",
+            )
+        )
     return out
 
 
@@ -240,7 +514,7 @@ def _stiffness(plant: Plant, j: int) -> Candidate:
         names,
         build,
         _first,
-        -float(plant.stiffness[j]),
+        ((-float(plant.stiffness[j]), np.inf), (-np.inf, np.inf)),  # a spring: total stiffness >= 0
     )
 
 
@@ -248,7 +522,16 @@ def _joint_offset(plant: Plant, j: int) -> Candidate:
     def build(s: Signals) -> np.ndarray:
         return -s.dtau_dq[:, :, j : j + 1]
 
-    return Candidate("joint_offset", plant.joint_names[j], "rad", "joint ref", (f"dq0_{j + 1}",), build, _first)
+    return Candidate(
+        "joint_offset",
+        plant.joint_names[j],
+        "rad",
+        "joint ref",
+        (f"dq0_{j + 1}",),
+        build,
+        _first,
+        ((-MAX_JOINT_OFFSET, MAX_JOINT_OFFSET),),
+    )
 
 
 def rotor_chain(plant: Plant, j: int) -> tuple[np.ndarray, int] | None:
@@ -317,7 +600,8 @@ def _payloads(plant: Plant, rng: np.random.Generator) -> list[Candidate]:
             return s.regressor[:, :, idx]
 
         names = tuple(f"d{INERTIAL_SYMBOLS[c - 10 * b]}{b + 1}" for c in cols)
-        out.append(Candidate("payload", body, "kg", "body inertial", names, build, _first))
+        bounds = ((0.0, np.inf),) + ((-np.inf, np.inf),) * (len(cols) - 1)  # a payload adds mass
+        out.append(Candidate("payload", body, "kg", "body inertial", names, build, _first, bounds))
     return out
 
 
@@ -332,23 +616,36 @@ def _rigid_body(plant: Plant, rng: np.random.Generator) -> list[Candidate]:
     return [Candidate("rigid_body", "", "N m", "every body inertial", names, build, _torque_rms)]
 
 
-CANDIDATE_EFFECTS: dict[str, Callable[[Plant, np.random.Generator], list[Candidate]]] = {
-    "armature": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "armature"],
-    "coulomb_friction": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "coulomb_friction"],
-    "joint_offset": lambda p, rng: [_joint_offset(p, j) for j in range(p.nv)],
-    "joint_stiffness": lambda p, rng: [_stiffness(p, j) for j in range(p.nv)],
-    "payload": _payloads,
-    "rotor_coupling": lambda p, rng: _rotor_couplings(p),
-    "rigid_body": _rigid_body,
-    "time_delay": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "time_delay"],
-    "torque_gain": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "torque_gain"],
-    "torque_offset": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "torque_offset"],
-    "viscous_friction": lambda p, rng: [c for c in _joint_effects(p) if c.effect == "viscous_friction"],
+_Factory = Callable[[Plant, np.random.Generator, "Signals | None"], list[Candidate]]
+
+CANDIDATE_EFFECTS: dict[str, _Factory] = {
+    "armature": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "armature"],
+    "backlash": lambda p, rng, s: [c for c in _compliance(p) if c.effect == "backlash"],
+    "cogging": lambda p, rng, s: _cogging(p, s),
+    "coulomb_friction": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "coulomb_friction"],
+    "joint_elasticity": lambda p, rng, s: [c for c in _compliance(p) if c.effect == "joint_elasticity"],
+    "joint_offset": lambda p, rng, s: [_joint_offset(p, j) for j in range(p.nv)],
+    "joint_stiffness": lambda p, rng, s: [_stiffness(p, j) for j in range(p.nv)],
+    "load_friction": lambda p, rng, s: _load_friction(p),
+    "payload": lambda p, rng, s: _payloads(p, rng),
+    "rotor_coupling": lambda p, rng, s: _rotor_couplings(p),
+    "rigid_body": lambda p, rng, s: _rigid_body(p, rng),
+    "smooth_coulomb_friction": lambda p, rng, s: [c for c in _shape_friction(p) if c.effect.startswith("smooth")],
+    "stribeck_friction": lambda p, rng, s: [c for c in _shape_friction(p) if c.effect == "stribeck_friction"],
+    "time_delay": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "time_delay"],
+    "torque_gain": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "torque_gain"],
+    "torque_offset": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "torque_offset"],
+    "viscous_friction": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "viscous_friction"],
 }
 
 
-def candidates(plant: Plant, effects: list[str] | tuple[str, ...], rng: np.random.Generator) -> list[Candidate]:
+def candidates(
+    plant: Plant, effects: list[str] | tuple[str, ...], rng: np.random.Generator, train: Signals | None = None
+) -> list[Candidate]:
     """Every candidate of the named effects (see `CANDIDATE_EFFECTS`) for this plant.
+
+    Args:
+        train: the training signals, for candidates whose shape is read from the data (the cogging period).
 
     Raises:
         ValueError: unknown effect name (the message lists the valid ones).
@@ -356,4 +653,4 @@ def candidates(plant: Plant, effects: list[str] | tuple[str, ...], rng: np.rando
     unknown = [e for e in effects if e not in CANDIDATE_EFFECTS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
-    return [c for e in effects for c in CANDIDATE_EFFECTS[e](plant, rng)]
+    return [c for e in effects for c in CANDIDATE_EFFECTS[e](plant, rng, train)]

@@ -10,6 +10,7 @@ residual = measured torque - nominal MJCF torque (inverse dynamics along the mea
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset
 from identify.derivatives import States, derive_states
+from identify.diagnose.anomalies import find_anomalies
 from identify.diagnose.calibrate import (
     Extension,
     applied_from_measured,
@@ -33,20 +35,27 @@ from identify.diagnose.calibrate import (
     predict_measured_torque,
 )
 from identify.diagnose.candidates import Candidate, Signals, candidates, signals, stack_signals
-from identify.diagnose.residuals import analyse_residual, noise_floor, whiteness
-from identify.diagnose.select import LinearFit, SelectionOptions, Step, fit_columns, select_effects
+from identify.diagnose.residuals import analyse_residual, noise_floor, residual_signature, whiteness
+from identify.diagnose.select import SelectionOptions, Step, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
+from identify.diagnose.statistics import LinearFit
 
 __all__ = ["DEFAULT_EFFECTS", "Diagnosis", "Finding", "ReferenceModel", "diagnose"]
 
 DEFAULT_EFFECTS = (
     "armature",
+    "backlash",
+    "cogging",
     "coulomb_friction",
+    "joint_elasticity",
     "joint_offset",
     "joint_stiffness",
+    "load_friction",
     "payload",
     "rigid_body",
     "rotor_coupling",
+    "smooth_coulomb_friction",
+    "stribeck_friction",
     "time_delay",
     "torque_gain",
     "torque_offset",
@@ -79,7 +88,14 @@ class Finding:
         counterpart: where it went in the calibrated MJCF.
         evidence: the numbers it was chosen on (BIC drop, held-out MSE before/after, z).
         torque_rms_after: validation torque RMS per joint with the findings up to this one [N m].
-        parameters: its coefficients: name, value, std.
+        parameters: its coefficients: name, value, std, at_bound (`lower`, `upper` or None).
+        at_bound: `lower` or `upper` when the headline value sits on its physical bound (its std is then
+            not defined), else None.
+        fold_gains: relative drop of the held-out error in each cross-validation fold when it was added.
+        confounded_with: the alternatives these data cannot separate from it: effect, target and the share
+            of its column left unexplained by the alternative (0: indistinguishable).
+        separate_by: the motion that would separate it from those alternatives.
+        note: how the calibrated MJCF holds it where MuJoCo has no attribute for it.
     """
 
     effect: str
@@ -91,6 +107,18 @@ class Finding:
     evidence: dict[str, float]
     torque_rms_after: dict[str, float]
     parameters: list[dict[str, Any]] = field(default_factory=list)
+    at_bound: str | None = None
+    fold_gains: list[float] = field(default_factory=list)
+    confounded_with: list[dict[str, Any]] = field(default_factory=list)
+    separate_by: str = ""
+    note: str = ""
+
+    @property
+    def name(self) -> str:
+        """The effect and its target, and its confounded alternatives (`a shoulder or b`)."""
+        own = f"{self.effect} {self.target}".strip()
+        alts = [f"{c['effect']} {c['target']}".strip() for c in self.confounded_with]
+        return " or ".join([own, *alts])
 
     def to_dict(self) -> dict[str, Any]:
         where = {"body": self.target} if self.effect == "payload" else {"joint": self.target or None}
@@ -104,6 +132,13 @@ class Finding:
             "evidence": {k: _num(v) for k, v in self.evidence.items()},
             "torque_rms_after": self.torque_rms_after,
             "parameters": self.parameters,
+            "at_bound": self.at_bound,
+            "fold_gains": self.fold_gains,
+            "fold_gain_spread": _spread(self.fold_gains),
+            "confounded": bool(self.confounded_with),
+            "confounded_with": self.confounded_with,
+            "separate_by": self.separate_by or None,
+            "note": self.note or None,
         }
 
 
@@ -126,6 +161,10 @@ class Diagnosis:
         notes: anything the caller should know (clipped values, unidentifiable directions).
         series: validation time series for the recording, one entry per validation record, in the analysis
             band as the table compares them (see `_validation_series`; not in to_dict).
+        remaining: per joint, the signature of what the calibrated model leaves on the validation records
+            (spectral peaks, correlation with q, dq, sign(dq), ddq, position-periodic content).
+        anomalies: data anomalies named before fitting (`anomalies.find_anomalies`).
+        verdict_reason: why the verdict is what it is.
     """
 
     system: str
@@ -141,6 +180,9 @@ class Diagnosis:
     info: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     series: dict[str, Any] = field(default_factory=dict)
+    remaining: dict[str, Any] = field(default_factory=dict)
+    anomalies: list[dict[str, Any]] = field(default_factory=list)
+    verdict_reason: str = ""
 
     def to_dict(self, *, mjcf_name: str | None = None) -> dict[str, Any]:
         """diagnosis.json: the DESIGN.md contract plus the supporting analysis."""
@@ -162,10 +204,20 @@ class Diagnosis:
             "noise_floor": self.noise_floor,
             "residual": self.residual,
             "whiteness": self.whiteness,
+            "verdict_reason": self.verdict_reason,
+            "remaining": self.remaining,
+            "anomalies": self.anomalies,
             "frictionloss_mapping": self.frictionloss_mapping,
             "info": self.info,
             "notes": self.notes,
         }
+
+
+def _spread(gains: list[float]) -> dict[str, float] | None:
+    if not gains:
+        return None
+    g = np.asarray(gains)
+    return {"min": float(g.min()), "median": float(np.median(g)), "max": float(g.max()), "std": float(g.std())}
 
 
 def _num(x: float) -> float | None:
@@ -282,6 +334,7 @@ def diagnose(
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     selection = selection or SelectionOptions()
+    anomalies = find_anomalies([*train, *validation])
     options = dict(derivative_options or {})
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
@@ -291,7 +344,7 @@ def diagnose(
     floor = np.median([noise_floor(r.data.tau) for r in tr], axis=0) * plant.actuated
     weights = _weights(plant, floor)
 
-    pool = candidates(plant, list(effects), rng)
+    pool = candidates(plant, list(effects), rng, s_tr)
     nuisance = (
         _record_offset_columns(s_tr) if record_offsets and len(tr) > 1 else np.zeros((s_tr.n_samples, plant.nv, 0))
     )
@@ -309,6 +362,7 @@ def diagnose(
         (s_tr.smooth(s_tr.regressor) * sw[None, :, None]).reshape(-1, s_tr.regressor.shape[2]), mode="r"
     )
     findings = _findings(steps, fit, X, s_tr, s_va, weights, names, m, offsets_by_record)
+    findings = _with_confounding(findings, steps, pool, s_tr, weights, X, m, selection.confound_independence)
     ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m else None)
     refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx)
 
@@ -348,14 +402,15 @@ def diagnose(
         friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
         series = _validation_series(plant, calibrated, ext, va, s_va, preds, window_s)
 
-    white_nom = whiteness(s_va.residual, floor, 1.0 / va[0].data.dt)
-    white_cal = whiteness(s_va.smooth(s_va.tau - preds["calibrated"]), floor, 1.0 / va[0].data.dt)
-    if findings:
-        verdict = "explained"
-    elif any(w["structured"] for w in white_nom):
-        verdict = "unexplained_structure"
-    else:
-        verdict = "no_discrepancy"
+    fs = 1.0 / va[0].data.dt
+    # an unactuated joint has no torque sensor: its residual (the torque the model needs there, which must be
+    # zero) is judged against the finest actuated joint's noise, as in the fit's weights
+    sigma = 1.0 / np.sqrt(weights)
+    white_nom = whiteness(s_va.residual, sigma, fs)
+    left = s_va.smooth(s_va.tau - preds["calibrated"])
+    white_cal = whiteness(left, sigma, fs)
+    verdict, reason = _verdict(findings, s_va, preds, weights, white_nom, white_cal, plant.actuated)
+    remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
     return Diagnosis(
         system=plant.name,
         joint_names=names,
@@ -384,9 +439,154 @@ def diagnose(
                 {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
             ],
         },
-        notes=list(ext.notes),
+        notes=[a.describe() for a in anomalies] + list(ext.notes),
         series=series,
+        remaining=remaining,
+        anomalies=[a.to_dict() for a in anomalies],
+        verdict_reason=reason,
     )
+
+
+def _verdict(
+    findings: list[Finding],
+    s_va: Signals,
+    preds: dict[str, np.ndarray],
+    weights: np.ndarray,
+    white_nom: list[dict[str, Any]],
+    white_cal: list[dict[str, Any]],
+    actuated: np.ndarray,
+) -> tuple[str, str]:
+    """The verdict from the residual that is left on the validation records.
+
+    - `explained`: effects were found, the held-out (validation) weighted torque MSE drops with them, and what
+      the calibrated model leaves is white within the noise on every joint;
+    - `unexplained_structure`: structure remains, in the nominal residual when nothing was found (or what was
+      found does not lower the held-out error), or in the calibrated one;
+    - `no_discrepancy`: nothing found and the nominal residual is white within the noise.
+    Unactuated joints count where their residual is structured: a passive joint's torque must be zero.
+    """
+    meas = s_va.smooth(s_va.tau)
+
+    def mse(pred: np.ndarray) -> float:
+        return float(np.mean((meas - s_va.smooth(pred)) ** 2 @ weights))
+
+    structured_nom = [bool(w["structured"]) for w in white_nom]
+    structured_cal = [bool(w["structured"]) for w in white_cal]
+    if not findings:
+        if any(structured_nom):
+            return "unexplained_structure", "no candidate effect explains the structure of the nominal residual"
+        return "no_discrepancy", "the nominal residual is white within the noise"
+    before, after = mse(preds["nominal"]), mse(preds["calibrated"])
+    if not after < before:
+        if any(structured_nom):
+            return "unexplained_structure", (
+                f"the effects found do not lower the held-out error ({after:.4g} >= {before:.4g}, weighted MSE) "
+                "and the nominal residual is structured"
+            )
+        return "no_discrepancy", "the effects found do not lower the held-out error; the nominal residual is white"
+    if any(structured_cal):
+        return "unexplained_structure", (
+            f"the effects found lower the held-out error ({before:.4g} -> {after:.4g}, weighted MSE) but the "
+            "calibrated residual is still structured (see `remaining`)"
+        )
+    return "explained", f"held-out error {before:.4g} -> {after:.4g} (weighted MSE); the residual left is white"
+
+
+def _separation(a: str, b: str) -> str:
+    """What motion would tell effect a from effect b."""
+    pair = {a, b}
+    body = {"rigid_body", "payload"}
+    if "armature" in pair and pair & body:
+        return (
+            "armature acts on its joint's row alone and does not change with the outer joints' angles: move the "
+            "joint with the outer links at several angles (or measure the rotor inertia on a bench); these data "
+            "fix only the sum"
+        )
+    if "torque_offset" in pair and pair & (body | {"joint_offset", "joint_stiffness"}):
+        return (
+            "swing past horizontal (large angles): a first-moment change goes as sin q and a spring as q, an "
+            "offset stays constant"
+        )
+    if "torque_gain" in pair:
+        return (
+            "a motion in which gravity and inertial torques vary independently (slow swings over large angles, "
+            "then fast small ones): a gain scales every torque alike, an inertial change only some"
+        )
+    if "time_delay" in pair:
+        return "faster excitation: a delay's torque grows with frequency (as d tau/dt), the alternative's does not"
+    if pair & {"coulomb_friction", "smooth_coulomb_friction", "stribeck_friction", "backlash", "load_friction"}:
+        return "dwell at low speed and reverse slowly, at several loads: friction shapes differ near zero speed"
+    return f"a motion on which the columns of {a} and {b} differ (they are nearly parallel on these data)"
+
+
+def _with_confounding(
+    findings: list[Finding],
+    steps: list[Step],
+    pool: list[Candidate],
+    s: Signals,
+    weights: np.ndarray,
+    X: np.ndarray,
+    n_nuisance: int,
+    threshold: float,
+) -> list[Finding]:
+    """Name, with each finding, the candidates not chosen that these data cannot tell from it.
+
+    A finding's headline column (weighted, in the band) is confounded with an alternative when the
+    alternative's columns, together with the other findings' columns, leave less than `threshold` of its
+    norm unexplained, while the other findings alone leave more (it is the alternative that explains it).
+    """
+    if not findings:
+        return findings
+    sw = np.sqrt(weights)
+    start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
+    chosen = {st.candidate.key for st in steps}
+    alternatives = [c for c in pool if c.key not in chosen]
+    blocks = [(X * sw[None, :, None]).reshape(-1, X.shape[2])]
+    offsets = [X.shape[2]]
+    for c in alternatives:
+        blocks.append((s.columns(c) * sw[None, :, None]).reshape(-1, len(c.parameter_names)))
+        offsets.append(offsets[-1] + blocks[-1].shape[1])
+    M = np.concatenate(blocks, axis=1)
+    gram = M.T @ M  # every share below is read from it: no further pass over the rows
+    out = []
+    for i, (f, st) in enumerate(zip(findings, steps, strict=True)):
+        if st.candidate.effect == "rigid_body":
+            out.append(f)
+            continue
+        head = int(start[i])
+        others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
+        alone = _share_left(gram, head, others)
+        alts: list[dict[str, Any]] = []
+        for k, c in enumerate(alternatives):
+            if c.effect == st.candidate.effect and c.target == st.candidate.target:
+                continue
+            share = _share_left(gram, head, others + list(range(offsets[k], offsets[k + 1])))
+            if share < threshold < alone or (share < threshold and alone >= 1.5 * share):
+                alts.append({"effect": c.effect, "target": c.target, "independence": share})
+        if alts:
+            alts.sort(key=lambda a: a["independence"])
+            seen: set[tuple[str, str]] = set()
+            unique = []
+            for a in alts:
+                if (a["effect"], a["target"]) not in seen:
+                    seen.add((a["effect"], a["target"]))
+                    unique.append(a)
+            sep = "; ".join(dict.fromkeys(_separation(st.candidate.effect, a["effect"]) for a in unique))
+            f = dataclasses.replace(f, confounded_with=unique, separate_by=sep)
+        out.append(f)
+    return out
+
+
+def _share_left(gram: np.ndarray, head: int, span: list[int]) -> float:
+    """Share (in norm) of column `head` outside the span of columns `span`, from their Gram matrix."""
+    hh = float(gram[head, head])
+    if hh <= 0:
+        return 0.0
+    if not span:
+        return 1.0
+    g = gram[span, head]
+    explained = float(g @ np.linalg.lstsq(gram[np.ix_(span, span)], g, rcond=1e-12)[0])
+    return float(np.sqrt(max(1.0 - explained / hh, 0.0)))
 
 
 def _predict_records(calibrated: Plant, ext: Extension, records: list[_Record]) -> np.ndarray:
@@ -433,9 +633,10 @@ def _final_fit(
     the nominal torque at q - o (Gauss-Newton on the offset); a gain multiplies the whole true torque, not
     only the nominal one, so its column is re-made from the nominal torque plus the other fitted effects.
     At the fixed point measured = gain (nominal(q - offset) + effects) + torque offset holds exactly, as
-    in the calibrated model.
+    in the calibrated model. Every coefficient stays within its candidate's physical range.
     """
-    fit = fit_columns(X, s.residual, weights)
+    lo, hi = _step_bounds(steps, n_nuisance)
+    fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
     offsets = [
         (int(start[i]), plant.joint_names.index(st.candidate.target))
@@ -464,13 +665,23 @@ def _final_fit(
             for c in gains:
                 row = np.flatnonzero(np.any(X[:, :, c] != 0, axis=0))
                 X[:, row, c] = total[:, row]
-        fit = fit_columns(X, s.smooth(s.tau - nominal), weights)
+        lo_it, hi_it = lo.copy(), hi.copy()
+        for c, j in offsets:  # the bounds hold for the total offset, the coefficient is its increment
+            lo_it[c], hi_it[c] = lo[c] - shift[j], hi[c] - shift[j]
+        fit = fit_columns(X, s.smooth(s.tau - nominal), weights, lower=lo_it, upper=hi_it, record=s.record)
         if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
     coef = fit.coef.copy()
     for c, j in offsets:
         coef[c] += shift[j]
-    return X, LinearFit(coef, fit.cov, fit.sigma)
+    return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time)
+
+
+def _step_bounds(steps: list[Step], n_nuisance: int) -> tuple[np.ndarray, np.ndarray]:
+    """(p,) lower and upper bounds of the nuisance (unbounded) then the steps' kept coefficients."""
+    lo = [np.full(n_nuisance, -np.inf)] + [st.candidate.lower[st.kept] for st in steps]
+    hi = [np.full(n_nuisance, np.inf)] + [st.candidate.upper[st.kept] for st in steps]
+    return np.concatenate(lo), np.concatenate(hi)
 
 
 def _rigid_refit(
@@ -481,7 +692,7 @@ def _rigid_refit(
     if not rb:
         return Extension.none(plant)
     X = s.columns(rb[0])
-    fit = fit_columns(X, s.residual, weights)
+    fit = fit_columns(X, s.residual, weights, record=s.record)
     step = Step(rb[0], np.arange(X.shape[2]), 0.0, 0.0, 0.0)
     return extension_from_fit(plant, [step], fit, base_idx)
 
@@ -501,12 +712,17 @@ def _findings(
     offset = n_nuisance
     cols_va = [s_va.columns(s.candidate)[:, :, s.kept] for s in steps]
     mean_offset = record_offsets.mean(axis=0) if record_offsets is not None and record_offsets.size else 0.0
+    lo, hi = _step_bounds(steps, n_nuisance)
+    flags = fit.bound_flags()
+    side = {-1: "lower", 1: "upper", 0: None}
     for i, s in enumerate(steps):
         k = len(s.kept)
         sl = slice(offset, offset + k)
         value, std = s.candidate.value(fit.coef[sl], fit.cov[sl, sl], X[:, :, sl])
         # the validation RMS with the findings up to this one, refitted on the training rows
-        partial = fit_columns(X[:, :, : offset + k], s_tr.residual, weights)
+        partial = fit_columns(
+            X[:, :, : offset + k], s_tr.residual, weights, lower=lo[: offset + k], upper=hi[: offset + k]
+        )
         pred = (
             s_va.smooth(s_va.tau_nominal)
             + mean_offset
@@ -515,6 +731,9 @@ def _findings(
         pnames = [s.candidate.parameter_names[j] for j in s.kept]
         stds = np.sqrt(np.clip(np.diag(fit.cov)[sl], 0, None))
         null = 1.0 if s.candidate.effect == "torque_gain" else 0.0
+        at_bound = side[int(flags[sl][0])]
+        if at_bound is not None:
+            std = float("nan")
         out.append(
             Finding(
                 effect=s.candidate.effect,
@@ -528,13 +747,17 @@ def _findings(
                     "heldout_mse_before": s.cv_mse_before,
                     "heldout_mse_after": s.cv_mse_after,
                     "heldout_gain": 1.0 - s.cv_mse_after / s.cv_mse_before if s.cv_mse_before > 0 else 0.0,
-                    "z": (value - null) / std if std > 0 else float("inf"),
+                    "z": (value - null) / std if std > 0 else float("nan"),
+                    "correlation_time_samples": fit.correlation_time,
                 },
                 torque_rms_after=_per_joint(names, _rms(pred, s_va.smooth(s_va.tau))),
                 parameters=[
-                    {"name": n, "value": float(v), "std": float(e)}
-                    for n, v, e in zip(pnames, fit.coef[sl], stds, strict=True)
+                    {"name": n, "value": float(v), "std": None if side[int(b)] else float(e), "at_bound": side[int(b)]}
+                    for n, v, e, b in zip(pnames, fit.coef[sl], stds, flags[sl], strict=True)
                 ],
+                at_bound=at_bound,
+                fold_gains=[float(g) for g in s.fold_gains],
+                note=s.candidate.note,
             )
         )
         offset += k

@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from identify.diagnose.candidates import Signals
+from identify.diagnose.candidates import COGGING_HARMONICS, Signals
 
-__all__ = ["analyse_residual", "noise_floor", "whiteness"]
+__all__ = ["analyse_residual", "noise_floor", "residual_signature", "whiteness"]
 
 
 def noise_floor(tau: np.ndarray) -> np.ndarray:
@@ -127,3 +127,53 @@ def _best_lag(
         if abs(c) > abs(best[1]):
             best = (k / fs, c)
     return best
+
+
+def residual_signature(
+    s: Signals, residual: np.ndarray, joint_names: tuple[str, ...], floor: np.ndarray, *, peaks: int = 3
+) -> dict[str, Any]:
+    """Per joint: what a residual left by a model looks like, to say what remains unexplained.
+
+    Args:
+        s: the signals the residual lives on (its q, dq, ddq).
+        residual: (N, nv) measured minus model torque, in the analysis band [N m].
+        floor: (nv,) noise floor [N m].
+
+    Returns:
+        Per joint: `rms` [N m] and `rms_over_noise`; `spectral_peaks` [{`hz`, `share`}] (the strongest
+        Welch peaks and their share of the residual's power); `correlation` with q, dq, sign(dq), ddq;
+        `position_periodic` {`cycles_per_rad`, `period_rad`, `amplitude` [N m], `share`} (the best
+        a sin(n q) + b cos(n q) over `COGGING_HARMONICS` and the share of the residual variance it explains).
+    """
+    fs = 1.0 / float(np.median(np.diff(s.time)))
+    out: dict[str, Any] = {}
+    for j, name in enumerate(joint_names):
+        x = residual[:, j] - residual[:, j].mean()
+        total = float(np.sum(x**2))
+        if total == 0:
+            continue
+        f, pxx = signal.welch(x, fs=fs, nperseg=min(2048, len(x)))
+        idx, _ = signal.find_peaks(pxx)
+        idx = idx[np.argsort(pxx[idx])[::-1][:peaks]] if idx.size else np.argsort(pxx)[::-1][:1]
+        probes = {"q": s.q[:, j], "dq": s.dq[:, j], "sign_dq": np.sign(s.dq[:, j]), "ddq": s.ddq[:, j]}
+        best = (0.0, 0.0, 0.0)
+        for n in COGGING_HARMONICS:
+            cols = s.smooth(np.column_stack([np.sin(n * s.q[:, j]), np.cos(n * s.q[:, j]), np.ones(len(x))]))
+            c, *_ = np.linalg.lstsq(cols, x, rcond=None)
+            share = float(np.sum((cols @ c) ** 2)) / total
+            if share > best[2]:
+                best = (float(n), float(np.hypot(c[0], c[1])), share)
+        rms = float(np.sqrt(np.mean(x**2)))
+        out[name] = {
+            "rms": rms,
+            "rms_over_noise": rms / max(float(floor[j]), 1e-12),
+            "spectral_peaks": [{"hz": float(f[i]), "share": float(pxx[i] / np.sum(pxx))} for i in idx],
+            "correlation": {k: _corr(x, v) for k, v in probes.items()},
+            "position_periodic": {
+                "cycles_per_rad": best[0],
+                "period_rad": 2 * np.pi / best[0] if best[0] else float("nan"),
+                "amplitude": best[1],
+                "share": best[2],
+            },
+        }
+    return out

@@ -6,18 +6,26 @@ rows, by weighted least squares (per-joint weights 1/sigma_j^2 from the torque n
 admissible when it lowers the BIC and its cross-validation (each training record held out in turn, or
 contiguous time blocks of a single record) lowers the held-out weighted torque MSE by at least `min_gain`
 (`min_gain_records` when records are held out) of the current one, and when the chosen ones do not
-already explain most of its column; among the admissible ones the lowest BIC wins (the parsimonious
-explanation: one armature column beats a whole rigid-body refit that fits the same data). Columns that
-the chosen ones already span are dropped.
+already explain most of its column, and when it lowers the held-out error in most folds (a gain on
+average that one fold carries is not a gain that generalises); among the admissible ones the lowest BIC
+wins (the parsimonious explanation: one armature column beats a whole rigid-body refit that fits the same
+data). Columns that the chosen ones already span are dropped.
+
+Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
+counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
+time (`statistics.correlation_time`): a band-limited residual at 4 Hz sampled at 500 Hz has about one
+independent sample in sixty, and counting all of them would let any column through.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import optimize
 
 from identify.diagnose.candidates import Candidate, Signals
+from identify.diagnose.statistics import LinearFit, correlation_time, fit_bounded
 
 __all__ = ["LinearFit", "SelectionOptions", "Step", "fit_columns", "select_effects"]
 
@@ -41,6 +49,12 @@ class SelectionOptions:
         min_independence: smallest share of a candidate's headline column (in norm) that the effects
             already chosen do not explain; below it the candidate is confounded with them and its value
             would only trade off against theirs, so it is not named.
+        confound_independence: a finding whose headline column an effect not chosen (with the other
+            findings) explains to within this share of its norm is reported as confounded with it: the
+            data cannot tell the two apart, and the finding names both.
+        native_preference: an effect MuJoCo has no attribute for (a custom numeric such as a smooth Coulomb
+            shape) is chosen over an admissible native one only when its held-out MSE is lower by more
+            than this share (MuJoCo's own frictionloss is already smooth near zero speed, for one).
     """
 
     min_gain: float = 0.02
@@ -50,6 +64,8 @@ class SelectionOptions:
     max_findings: int = 6
     min_z: float = 3.0
     min_independence: float = 0.1
+    confound_independence: float = 0.3
+    native_preference: float = 0.1
     min_delay_samples: float = 0.5
 
     def __post_init__(self) -> None:
@@ -61,21 +77,6 @@ class SelectionOptions:
 
 
 @dataclass(frozen=True)
-class LinearFit:
-    """Coefficients of chosen columns and their covariance.
-
-    Attributes:
-        coef: (p,) coefficients.
-        cov: (p, p) Newey-West covariance (robust to residual autocorrelation) [coefficient units^2].
-        sigma: (nv,) residual std per joint [N m].
-    """
-
-    coef: np.ndarray
-    cov: np.ndarray
-    sigma: np.ndarray
-
-
-@dataclass(frozen=True)
 class Step:
     """One accepted candidate.
 
@@ -84,6 +85,8 @@ class Step:
         kept: indices of its columns that were not already spanned.
         delta_bic: change of the BIC when it was added.
         cv_mse_before, cv_mse_after: held-out weighted torque MSE before and after [1] (weighted units).
+        fold_gains: (folds,) relative drop of the held-out MSE in each fold (1 - after / before).
+        folds: what the folds were (`files`: one record held out in turn; `blocks`: time blocks).
     """
 
     candidate: Candidate
@@ -91,42 +94,33 @@ class Step:
     delta_bic: float
     cv_mse_before: float
     cv_mse_after: float
+    fold_gains: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    folds: str = "blocks"
 
 
 def _flat(X: np.ndarray, sw: np.ndarray) -> np.ndarray:
     return (X * sw[None, :, None]).reshape(-1, X.shape[-1])
 
 
-def _newey_west(A: np.ndarray, e: np.ndarray, nv: int, lags: int) -> np.ndarray:
-    """Sandwich covariance of least squares with per-sample scores summed over joints, Bartlett weights."""
-    bread = np.linalg.pinv(A.T @ A)
-    scores = (A * e[:, None]).reshape(-1, nv, A.shape[1]).sum(axis=1)
-    meat = scores.T @ scores
-    for lag in range(1, lags + 1):
-        g = scores[lag:].T @ scores[:-lag]
-        meat += (1 - lag / (lags + 1)) * (g + g.T)
-    return bread @ meat @ bread
-
-
-def fit_columns(X: np.ndarray, r: np.ndarray, weights: np.ndarray, *, lags: int | None = None) -> LinearFit:
-    """Weighted least squares r ~ X c.
+def fit_columns(
+    X: np.ndarray,
+    r: np.ndarray,
+    weights: np.ndarray,
+    *,
+    lower: np.ndarray | None = None,
+    upper: np.ndarray | None = None,
+    record: np.ndarray | None = None,
+) -> LinearFit:
+    """Weighted least squares r ~ X c within bounds, with honest covariance (`statistics.fit_bounded`).
 
     Args:
         X: (N, nv, p) columns.
         r: (N, nv) residual torque [N m].
         weights: (nv,) per-joint weights (1 / sigma_j^2).
-        lags: Newey-West lags (None: the usual 4 (N/100)^(2/9)).
+        lower, upper: (p,) bounds of the coefficients (None: unbounded).
+        record: (N,) record index of each row.
     """
-    n, nv, p = X.shape
-    if p == 0:
-        return LinearFit(np.zeros(0), np.zeros((0, 0)), np.sqrt(np.mean(r**2, axis=0)))
-    sw = np.sqrt(weights)
-    A, b = _flat(X, sw), (r * sw).ravel()
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    e = b - A @ coef
-    lags = int(np.ceil(4 * (n / 100) ** (2 / 9))) if lags is None else lags
-    resid = r - np.einsum("knp,p->kn", X, coef)
-    return LinearFit(coef, _newey_west(A, e, nv, lags), np.sqrt(np.mean(resid**2, axis=0)))
+    return fit_bounded(X, r, weights, lower=lower, upper=upper, record=record)
 
 
 def _independence(basis: np.ndarray, col: np.ndarray) -> float:
@@ -157,16 +151,54 @@ def _span_free(basis: np.ndarray, cols: np.ndarray, tol: float = 1e-6) -> list[i
     return keep
 
 
-def _scores(A: np.ndarray, b: np.ndarray, folds: np.ndarray, n_folds: int) -> tuple[float, float]:
-    """(weighted RSS of the full fit, held-out weighted MSE over the folds)."""
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    rss = float(np.sum((b - A @ coef) ** 2))
-    held = 0.0
+def _solve_gram(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """argmin x'Gx - 2c'x within lo <= x <= hi (least squares in normal-equation form)."""
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(G), 1e-300))
+    Gs, cs = G * np.outer(scale, scale), c * scale
+    w, V = np.linalg.eigh(Gs)
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    R = (V[:, keep] * np.sqrt(w[keep])).T  # R'R = Gs on its range
+    d = (V[:, keep].T @ cs) / np.sqrt(w[keep])
+    x, *_ = np.linalg.lstsq(R, d, rcond=None)
+    if np.any(x * scale < lo) or np.any(x * scale > hi):
+        x = optimize.lsq_linear(R, d, bounds=(lo / scale, hi / scale), method="bvls").x
+    return x * scale
+
+
+def _scores(
+    A: np.ndarray, b: np.ndarray, folds: np.ndarray, n_folds: int, lo: np.ndarray, hi: np.ndarray
+) -> tuple[float, np.ndarray]:
+    """(weighted RSS of the full bounded fit, (folds,) held-out weighted MSE per fold).
+
+    Every fit is solved from the folds' Gram matrices (p x p), so that a fold costs no pass over the rows.
+    """
+    p = A.shape[1]
+    G = np.empty((n_folds, p, p))
+    c = np.empty((n_folds, p))
+    bb = np.empty(n_folds)
+    size = np.empty(n_folds)
     for f in range(n_folds):
-        test = folds == f
-        c, *_ = np.linalg.lstsq(A[~test], b[~test], rcond=None)
-        held += float(np.sum((b[test] - A[test] @ c) ** 2))
-    return rss, held / len(b)
+        rows = folds == f
+        Af, bf = A[rows], b[rows]
+        G[f], c[f], bb[f], size[f] = Af.T @ Af, Af.T @ bf, bf @ bf, np.count_nonzero(rows)
+    Gt, ct, bbt = G.sum(axis=0), c.sum(axis=0), bb.sum()
+    x = _solve_gram(Gt, ct, lo, hi)
+    rss = float(bbt - 2 * ct @ x + x @ Gt @ x)
+    held = np.empty(n_folds)
+    for f in range(n_folds):
+        xf = _solve_gram(Gt - G[f], ct - c[f], lo, hi)
+        held[f] = float(bb[f] - 2 * c[f] @ xf + xf @ G[f] @ xf) / size[f]
+    return max(rss, 0.0), held
+
+
+def _bic(rss: float, n_obs: int, n_eff: float, p: int) -> float:
+    """BIC with the effective sample size: the log-likelihood counts n_eff independent samples."""
+    return n_eff * np.log(max(rss, 1e-300) / n_obs) + p * np.log(n_eff)
+
+
+def _fold_mse(held: np.ndarray, folds: np.ndarray, n_folds: int) -> float:
+    sizes = np.bincount(folds, minlength=n_folds)
+    return float(np.sum(held * sizes) / np.sum(sizes))
 
 
 def select_effects(
@@ -197,24 +229,29 @@ def select_effects(
     records = np.unique(train.record)
     if len(records) >= 2:  # leave one record out: held out as the validation files will be
         folds = np.repeat(np.searchsorted(records, train.record), nv)
-        n_folds = len(records)
+        n_folds, kind = len(records), "files"
         min_gain = options.min_gain_records
     else:  # contiguous time blocks of the single record
         folds = np.repeat(np.minimum(np.arange(n) * options.folds // n, options.folds - 1), nv)
-        n_folds = options.folds
+        n_folds, kind = options.folds, "blocks"
         min_gain = options.min_gain
+    row_record = np.repeat(train.record, 1)
     built = {c.key: train.columns(c) for c in pool}
     chosen: list[Step] = []
     X = np.zeros((n, nv, 0)) if nuisance is None else nuisance
+    lo, hi = np.full(X.shape[2], -np.inf), np.full(X.shape[2], np.inf)
     basis = np.linalg.qr(_flat(X, sw))[0] if X.shape[2] else np.zeros((n_obs, 0))
     if X.shape[2]:
-        rss, cv = _scores(_flat(X, sw), b, folds, n_folds)
-        bic = n_obs * np.log(rss / n_obs) + X.shape[2] * np.log(n_obs)
+        rss, held = _scores(_flat(X, sw), b, folds, n_folds, lo, hi)
+        coef, *_ = np.linalg.lstsq(_flat(X, sw), b, rcond=None)
+        e = b - _flat(X, sw) @ coef
     else:
-        rss, cv = float(b @ b), float(b @ b) / n_obs
-        bic = n_obs * np.log(rss / n_obs)
+        rss, held, e = float(b @ b), np.array([float(np.mean(b[folds == f] ** 2)) for f in range(n_folds)]), b
+    n_eff = n_obs / correlation_time(e.reshape(n, nv), row_record)
+    bic = _bic(rss, n_obs, n_eff, X.shape[2])
     while len(chosen) < options.max_findings:
-        best: tuple[float, Candidate, list[int], float, float] | None = None
+        best: tuple[float, Candidate, list[int], float, np.ndarray] | None = None
+        admissible: list[tuple[float, Candidate, list[int], float, np.ndarray]] = []
         for cand in pool:
             if any(s.candidate.key == cand.key for s in chosen):
                 continue
@@ -228,27 +265,46 @@ def select_effects(
             ):
                 continue  # confounded with what is already chosen
             A = _flat(np.concatenate([X, cols[:, :, kept]], axis=2), sw)
-            rss_c, cv_c = _scores(A, b, folds, n_folds)
-            bic_c = n_obs * np.log(max(rss_c, 1e-300) / n_obs) + A.shape[1] * np.log(n_obs)
+            lo_c, hi_c = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
+            rss_c, held_c = _scores(A, b, folds, n_folds, lo_c, hi_c)
+            bic_c = _bic(rss_c, n_obs, n_eff, A.shape[1])
+            gains = 1.0 - held_c / np.maximum(held, 1e-300)
+            cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
             if bic_c - bic > -options.bic_margin or cv_c > (1 - min_gain) * cv:
                 continue
+            if np.count_nonzero(gains > 0) * 2 <= n_folds:
+                continue  # it must lower the held-out error in most folds, not on average only
+            admissible.append((bic_c, cand, kept, rss_c, held_c))
             if best is None or bic_c < best[0]:
-                best = (bic_c, cand, kept, rss_c, cv_c)
+                best = (bic_c, cand, kept, rss_c, held_c)
         if best is None:
             break
-        bic_c, cand, kept, rss_c, cv_c = best
+        if not best[1].native:  # a shape MuJoCo cannot hold must beat a native alternative clearly
+            held_best = _fold_mse(best[4], folds, n_folds)
+            ties = [
+                a
+                for a in admissible
+                if a[1].native and _fold_mse(a[4], folds, n_folds) * (1 - options.native_preference) <= held_best
+            ]
+            if ties:
+                best = min(ties, key=lambda a: a[0])
+        bic_c, cand, kept, rss_c, held_c = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
-        fit = fit_columns(X_new, train.residual, weights)
+        lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
+        fit = fit_columns(X_new, train.residual, weights, lower=lo_new, upper=hi_new, record=row_record)
         sl = slice(X.shape[2], X_new.shape[2])
         value, std = cand.value(fit.coef[sl], fit.cov[sl, sl], X_new[:, :, sl])
         null = 1.0 if cand.effect == "torque_gain" else 0.0
         too_short = cand.effect == "time_delay" and abs(value) < options.min_delay_samples * dt
-        if not abs(value - null) > options.min_z * std or value < cand.minimum or too_short:
-            pool = [c for c in pool if c.key != cand.key]  # not significant or not physical: never again
+        headline_at_bound = bool(fit.bound_flags()[sl][0] != 0)
+        significant = abs(value - null) > options.min_z * std if not headline_at_bound else True
+        if not significant or too_short:
+            pool = [c for c in pool if c.key != cand.key]  # not significant: never again
             continue
-        chosen.append(Step(cand, np.array(kept), float(bic_c - bic), cv, cv_c))
-        X = X_new
-        A = _flat(X, sw)
-        q, _ = np.linalg.qr(A)
-        basis, bic, rss, cv = q, bic_c, rss_c, cv_c
+        cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
+        gains = 1.0 - held_c / np.maximum(held, 1e-300)
+        chosen.append(Step(cand, np.array(kept), float(bic_c - bic), cv, cv_c, gains, kind))
+        X, lo, hi = X_new, lo_new, hi_new
+        q, _ = np.linalg.qr(_flat(X, sw))
+        basis, bic, rss, held = q, bic_c, rss_c, held_c
     return chosen, X

@@ -1,0 +1,367 @@
+"""A data generator independent of the harness's simulation pipeline, to test the diagnosis on data it was
+not designed around.
+
+Nothing here uses `envs.simulate`, `envs.effects`, `envs.sensors` or the excitation designs: its own
+`mj_step` loop runs a copy of the MJCF under its own PD controller (with the nominal model's inverse
+dynamics as feed-forward) that tracks a random multi-sine of its own; the hidden effects are its own
+edits of the compiled model or its own applied forces; its own sensor adds white noise and quantisation.
+The torque logged at a row is the command held over the following control interval (a zero-order hold),
+as a real driver logs it.
+
+Effects (`Injected.effect`):
+- in the diagnosis's vocabulary: `viscous_friction`, `coulomb_friction` (MuJoCo frictionloss), `armature`,
+  `payload` (mass added to the joint's body at its centre of mass), `joint_stiffness`, `cogging`
+  (size sin(extra q)), `stribeck_friction` (size sign(dq) exp(-(dq / extra)^2)), `torque_gain` (logged =
+  (1 + size) applied), `torque_offset`, `time_delay` (logged torque late by size s), `joint_offset`
+  (logged angle = true + size);
+- outside it: `quadratic_drag` (size dq |dq|) and `torque_disturbance` (size sin(2 pi extra t), a torque
+  that follows time, not the motion).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from dynamics.plant import Plant, load_plant
+from envs.dataset import Dataset
+
+__all__ = [
+    "IN_VOCABULARY",
+    "OUT_OF_VOCABULARY",
+    "SYSTEMS",
+    "Injected",
+    "TestbedSystem",
+    "hidden_effect_cases",
+    "hidden_effect_table",
+    "hidden_markdown",
+    "rollout",
+]
+
+IN_VOCABULARY = (
+    "armature",
+    "cogging",
+    "coulomb_friction",
+    "joint_offset",
+    "joint_stiffness",
+    "payload",
+    "stribeck_friction",
+    "time_delay",
+    "torque_gain",
+    "torque_offset",
+    "viscous_friction",
+)
+OUT_OF_VOCABULARY = ("quadratic_drag", "torque_disturbance")
+
+
+@dataclass(frozen=True)
+class Injected:
+    """One hidden effect.
+
+    Attributes:
+        effect: its name (see the module docstring).
+        joint: the joint it acts on (for `payload`: the joint whose body carries it).
+        size: its size in SI units (for `torque_gain`: the departure from 1).
+        extra: a shape parameter (cycles per rad for `cogging`, Stribeck speed [rad/s], disturbance
+            frequency [Hz]).
+    """
+
+    effect: str
+    joint: str
+    size: float
+    extra: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.effect not in IN_VOCABULARY + OUT_OF_VOCABULARY:
+            valid = ", ".join(IN_VOCABULARY + OUT_OF_VOCABULARY)
+            raise ValueError(f"unknown injected effect {self.effect!r}; valid choices: {valid}")
+
+
+@dataclass(frozen=True)
+class TestbedSystem:
+    """How a built-in system is excited and measured by the testbed.
+
+    Attributes:
+        amplitude: (nv,) multi-sine reference amplitude per joint [rad] (0: the joint is not tracked).
+        kp, kd: (nv,) PD gains [N m/rad, N m s/rad].
+        sigma_tau: (nv,) torque noise std [N m]; tau_resolution: its quantum [N m].
+        max_hz: highest reference frequency [Hz].
+        center: (nv,) the pose the motion starts at and swings about [rad] (empty: zero), inside the joint
+            ranges.
+    """
+
+    amplitude: tuple[float, ...]
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+    sigma_tau: tuple[float, ...]
+    tau_resolution: float
+    max_hz: float = 1.2
+    center: tuple[float, ...] = ()
+
+
+SYSTEMS: dict[str, TestbedSystem] = {
+    "pendulum": TestbedSystem((1.0,), (8.0,), (0.4,), (0.01,), 0.001),
+    "two_link": TestbedSystem((0.8, 1.0), (40.0, 20.0), (1.5, 0.8), (0.02, 0.02), 0.00586),
+    "arm3": TestbedSystem(
+        (0.6, 0.5, 0.6), (60.0, 120.0, 60.0), (3.0, 6.0, 3.0), (0.03, 0.03, 0.03), 0.005, center=(0.0, -1.3, 0.6)
+    ),
+    # only the wheel is driven: it tracks a multi-sine angle and the passive pendulum swings in reaction
+    "wheel_pendulum": TestbedSystem((0.0, 12.0), (0.0, 0.05), (0.0, 0.004), (0.0, 0.003), 0.0002, max_hz=1.0),
+}
+
+_ENCODER_SIGMA = 2e-5  # [rad]
+_ENCODER_RESOLUTION = 2.4e-5  # [rad]
+
+
+def _multisine(
+    rng: np.random.Generator, amplitude: np.ndarray, max_hz: float, n_sines: int = 5
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies (k,) [Hz], phases (nv, k) and amplitudes (nv, k) [rad] of a random multi-sine per joint."""
+    freqs = np.sort(rng.uniform(0.15, max_hz, n_sines))
+    phases = rng.uniform(0, 2 * np.pi, (len(amplitude), n_sines))
+    weights = rng.uniform(0.5, 1.0, (len(amplitude), n_sines)) / freqs[None, :] ** 0.5
+    weights *= (amplitude / np.maximum(weights.sum(axis=1), 1e-12))[:, None]
+    return freqs, phases, weights
+
+
+def _reference(t: float, freqs: np.ndarray, phases: np.ndarray, amps: np.ndarray) -> tuple[np.ndarray, ...]:
+    w = 2 * np.pi * freqs
+    arg = w[None, :] * t + phases
+    # faded in over the first second so that the arm starts at rest
+    fade = min(t, 1.0) ** 2 * (3 - 2 * min(t, 1.0))
+    q = fade * np.sum(amps * (np.sin(arg) - np.sin(phases)), axis=1)
+    dq = fade * np.sum(amps * w * np.cos(arg), axis=1)
+    ddq = fade * np.sum(-amps * w**2 * np.sin(arg), axis=1)
+    return q, dq, ddq
+
+
+def _hidden_model(plant: Plant, effects: list[Injected]) -> mujoco.MjModel:
+    m = mujoco.MjModel.from_xml_path(str(plant.path))
+    for e in effects:
+        j = plant.joint_names.index(e.joint)
+        dof = int(m.jnt_dofadr[j])
+        if e.effect == "viscous_friction":
+            m.dof_damping[dof] += e.size
+        elif e.effect == "coulomb_friction":
+            m.dof_frictionloss[dof] += e.size
+        elif e.effect == "armature":
+            m.dof_armature[dof] += e.size
+        elif e.effect == "joint_stiffness":
+            m.jnt_stiffness[j] += e.size
+        elif e.effect == "payload":
+            body = int(m.jnt_bodyid[j])
+            ratio = (m.body_mass[body] + e.size) / m.body_mass[body]
+            m.body_mass[body] += e.size
+            m.body_inertia[body] *= ratio  # the payload spread like the body: its centre of mass stays
+    mujoco.mj_setConst(m, mujoco.MjData(m))
+    return m
+
+
+def _applied_forces(
+    effects: list[Injected], names: tuple[str, ...], t: float, q: np.ndarray, dq: np.ndarray
+) -> np.ndarray:
+    out = np.zeros(len(q))
+    for e in effects:
+        j = names.index(e.joint)
+        if e.effect == "cogging":
+            out[j] -= e.size * np.sin(e.extra * q[j])
+        elif e.effect == "stribeck_friction":
+            out[j] -= e.size * np.tanh(dq[j] / 1e-3) * np.exp(-((dq[j] / e.extra) ** 2))
+        elif e.effect == "quadratic_drag":
+            out[j] -= e.size * dq[j] * abs(dq[j])
+        elif e.effect == "torque_disturbance":
+            out[j] -= e.size * np.sin(2 * np.pi * e.extra * t)
+    return out
+
+
+def rollout(
+    system: str,
+    effects: list[Injected],
+    *,
+    rng: np.random.Generator,
+    duration_s: float = 10.0,
+    rate_hz: float = 500.0,
+    source: str = "testbed",
+) -> tuple[Plant, Dataset]:
+    """Simulate `system` (a built-in name) with hidden `effects` under the testbed's own controller.
+
+    The forces of `cogging`, `stribeck_friction` and the out-of-vocabulary effects act against the motion
+    as the plant's passive forces (MuJoCo's `qfrc_applied`); what the sensor reports is the motor torque.
+
+    Returns:
+        (the nominal plant, the measured record: time, q, tau, with tau_lead_s of half a sample).
+    """
+    plant = load_plant(system)
+    cfg = SYSTEMS[system]
+    m = _hidden_model(plant, effects)
+    d = mujoco.MjData(m)
+    nominal = plant.mj_model
+    dn = mujoco.MjData(nominal)
+    freqs, phases, amps = _multisine(rng, np.array(cfg.amplitude), cfg.max_hz)
+    center = np.array(cfg.center) if cfg.center else np.zeros(plant.nv)
+    d.qpos[:] = center
+    kp, kd = np.array(cfg.kp), np.array(cfg.kd)
+    act = np.asarray(plant.actuated, bool)
+    lo, hi = nominal.actuator_ctrlrange[:, 0], nominal.actuator_ctrlrange[:, 1]
+    dof_of_act = nominal.jnt_dofadr[nominal.actuator_trnid[:, 0]]
+    substeps = max(int(round(1.0 / (rate_hz * m.opt.timestep))), 1)
+    n = int(duration_s * rate_hz)
+    time, q_log, tau_log = np.arange(n) / rate_hz, np.zeros((n, plant.nv)), np.zeros((n, plant.nv))
+    for k in range(n):
+        t = time[k]
+        qr, dqr, ddqr = _reference(t, freqs, phases, amps)
+        qr = qr + center
+        dn.qpos[:], dn.qvel[:], dn.qacc[:] = qr, dqr, ddqr
+        mujoco.mj_inverse(nominal, dn)
+        tau = np.where(act, dn.qfrc_inverse + kp * (qr - d.qpos) + kd * (dqr - d.qvel), 0.0)
+        d.ctrl[:] = np.clip(tau[dof_of_act], lo, hi)
+        applied = np.zeros(plant.nv)
+        applied[dof_of_act] = d.ctrl
+        q_log[k], tau_log[k] = d.qpos, applied
+        for _ in range(substeps):
+            d.qfrc_applied[:] = _applied_forces(effects, plant.joint_names, float(d.time), d.qpos, d.qvel)
+            mujoco.mj_step(m, d)
+    return plant, _measure(plant, effects, time, q_log, tau_log, cfg, rng, source)
+
+
+def _measure(
+    plant: Plant,
+    effects: list[Injected],
+    time: np.ndarray,
+    q: np.ndarray,
+    tau: np.ndarray,
+    cfg: TestbedSystem,
+    rng: np.random.Generator,
+    source: str,
+) -> Dataset:
+    q, tau = q.copy(), tau.copy()
+    dt = time[1] - time[0]
+    for e in effects:
+        j = plant.joint_names.index(e.joint)
+        if e.effect == "time_delay":
+            tau[:, j] = np.interp(time - e.size, time, tau[:, j], left=tau[0, j])
+        elif e.effect == "torque_gain":
+            tau[:, j] *= 1.0 + e.size
+        elif e.effect == "torque_offset":
+            tau[:, j] += e.size
+        elif e.effect == "joint_offset":
+            q[:, j] += e.size
+    act = np.asarray(plant.actuated, bool)
+    tau = tau + rng.normal(0.0, 1.0, tau.shape) * np.array(cfg.sigma_tau)
+    tau = np.where(act, np.round(tau / cfg.tau_resolution) * cfg.tau_resolution, 0.0)
+    q = q + rng.normal(0.0, _ENCODER_SIGMA, q.shape)
+    q = np.round(q / _ENCODER_RESOLUTION) * _ENCODER_RESOLUTION
+    return Dataset(
+        time=time,
+        q=q,
+        tau=tau,
+        joint_names=plant.joint_names,
+        actuated=act,
+        source=source,
+        tau_lead_s=0.5 * dt,
+        meta={"generator": "identify.diagnose.testbed", "effects": [e.__dict__ for e in effects]},
+    )
+
+
+def hidden_effect_cases() -> list[tuple[str, list[Injected], str]]:
+    """(system, effects, expectation) of the benchmark's table: `named` (the first effect is named first),
+    `unexplained` (outside the vocabulary) or `clean`. Effects at two sizes and on several joints."""
+    cases: list[tuple[str, list[Injected], str]] = [(s, [], "clean") for s in SYSTEMS]
+    for size in (0.02, 0.06):
+        cases.append(("two_link", [Injected("viscous_friction", "elbow", size)], "named"))
+        cases.append(("two_link", [Injected("coulomb_friction", "shoulder", 2 * size)], "named"))
+    for size in (0.002, 0.006):
+        cases.append(("two_link", [Injected("armature", "elbow", size)], "named"))
+    cases += [
+        ("two_link", [Injected("torque_offset", "shoulder", 0.08)], "named"),
+        ("two_link", [Injected("torque_gain", "elbow", 0.1)], "named"),
+        ("two_link", [Injected("time_delay", "shoulder", 0.006)], "named"),
+        ("two_link", [Injected("payload", "elbow", 0.1)], "named"),
+        ("two_link", [Injected("cogging", "shoulder", 0.08, 6.0)], "named"),
+        ("two_link", [Injected("stribeck_friction", "elbow", 0.08, 0.1)], "named"),
+        ("two_link", [Injected("quadratic_drag", "shoulder", 0.03)], "unexplained"),
+        ("two_link", [Injected("torque_disturbance", "elbow", 0.1, 0.37)], "unexplained"),
+        ("pendulum", [Injected("viscous_friction", "swing", 0.01)], "named"),
+        ("pendulum", [Injected("coulomb_friction", "swing", 0.03)], "named"),
+        ("pendulum", [Injected("torque_disturbance", "swing", 0.05, 0.37)], "unexplained"),
+        ("arm3", [Injected("viscous_friction", "pitch", 0.1)], "named"),
+        ("arm3", [Injected("coulomb_friction", "elbow", 0.1)], "named"),
+        ("arm3", [Injected("quadratic_drag", "yaw", 0.1)], "unexplained"),
+        ("wheel_pendulum", [Injected("viscous_friction", "wheel", 2e-4)], "named"),
+        ("wheel_pendulum", [Injected("coulomb_friction", "wheel", 0.01)], "named"),
+        ("wheel_pendulum", [Injected("torque_disturbance", "wheel", 0.01, 0.37)], "unexplained"),
+    ]
+    return cases
+
+
+def diagnose_case(system: str, effects: list[Injected], seed: int = 0, **kwargs: Any) -> Any:
+    """Train on a 10 s record and validate on a 5 s record of another multi-sine, both from `rollout`."""
+    from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
+
+    rng_train, rng_val = np.random.default_rng(seed).spawn(2)
+    plant, train = rollout(system, effects, rng=rng_train, duration_s=10.0, source="testbed_train")
+    _, validation = rollout(system, effects, rng=rng_val, duration_s=5.0, source="testbed_validation")
+    return plant, diagnose(
+        plant, [train], [validation], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}, **kwargs
+    )
+
+
+def hidden_effect_table(seed: int = 0) -> list[dict[str, Any]]:
+    """One row per case of `hidden_effect_cases`: truth, what was named, verdict, validation RMS."""
+    rows = []
+    for system, effects, expect in hidden_effect_cases():
+        plant, dg = diagnose_case(system, effects, seed)
+        first = dg.findings[0] if dg.findings else None
+        truth = effects[0] if effects else None
+        joint = plant.joint_names.index(truth.joint) if truth else int(np.argmax(plant.actuated))
+        name = plant.joint_names[joint]
+        rows.append(
+            {
+                "system": system,
+                "truth": f"{truth.effect} {truth.joint} {truth.size:g}" if truth else "none",
+                "expect": expect,
+                "named_first": first.name if first else "-",
+                "value": first.value if first else None,
+                "std": first.std if first else None,
+                "verdict": dg.verdict,
+                "findings": [f.name for f in dg.findings],
+                "nominal_rms": dg.models["nominal"]["torque_rms"][name],
+                "calibrated_rms": dg.models["calibrated"]["torque_rms"][name],
+                "joint": name,
+                "ok": _ok(expect, truth, dg, plant),
+            }
+        )
+        print(rows[-1]["system"], rows[-1]["truth"], rows[-1]["named_first"], dg.verdict, rows[-1]["ok"], flush=True)
+    return rows
+
+
+def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
+    if expect == "clean":
+        return bool(dg.verdict == "no_discrepancy")
+    if expect == "unexplained":
+        return bool(dg.verdict == "unexplained_structure")
+    assert truth is not None
+    if not dg.findings:
+        return False
+    f = dg.findings[0]
+    names = {(f.effect, f.target)} | {(c["effect"], c["target"]) for c in f.confounded_with}
+    target = plant.body_names[plant.joint_names.index(truth.joint)] if truth.effect == "payload" else truth.joint
+    return (truth.effect, target) in names and dg.verdict in ("explained", "unexplained_structure")
+
+
+def hidden_markdown(rows: list[dict[str, Any]]) -> str:
+    lines = [
+        "| system | hidden | expected | named first | value ± std | verdict | RMS nominal → calibrated [N m] | ok |",
+        "|---|---|---|---|---:|---|---:|---|",
+    ]
+    for r in rows:
+        value = "-" if r["value"] is None else f"{r['value']:.4g} ± {r['std']:.2g}"
+        rms = f"{r['joint']}: {r['nominal_rms']:.4f} → {r['calibrated_rms']:.4f}"
+        lines.append(
+            f"| {r['system']} | {r['truth']} | {r['expect']} | {r['named_first']} | {value} | {r['verdict']} | "
+            f"{rms} | {'yes' if r['ok'] else '**no**'} |"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,83 @@
+"""The diagnosis's statistics: effective sample size, bounded fits and standard deviations that cover the
+truth at the stated rate on band-limited (strongly autocorrelated) residuals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from identify.diagnose.statistics import block_ids, correlation_time, fit_bounded
+
+FS, BAND = 500.0, 4.0
+
+
+def _band_limited(rng: np.random.Generator, shape: tuple[int, ...], sigma: float) -> np.ndarray:
+    sos = signal.butter(4, BAND, fs=FS, output="sos")
+    return signal.sosfiltfilt(sos, rng.normal(0.0, sigma, shape), axis=0)
+
+
+def _columns(n: int) -> np.ndarray:
+    """(n, 2, 3) smooth columns in the band: a slow sine, a filtered square wave (Coulomb-like), a two-tone."""
+    t = np.arange(n) / FS
+    X = np.zeros((n, 2, 3))
+    X[:, 0, 0] = np.sin(2 * np.pi * 0.3 * t)
+    X[:, 0, 1] = np.sign(np.cos(2 * np.pi * 0.5 * t))
+    X[:, 1, 2] = np.cos(2 * np.pi * 0.7 * t) + 0.3 * np.sin(2 * np.pi * 1.3 * t)
+    return signal.sosfiltfilt(signal.butter(4, BAND, fs=FS, output="sos"), X, axis=0)
+
+
+def test_correlation_time_of_white_noise_is_one_and_of_band_limited_noise_is_long() -> None:
+    rng = np.random.default_rng(0)
+    assert correlation_time(rng.normal(size=(20000, 2))) == pytest.approx(1.0, abs=0.2)
+    # a 4 Hz band at 500 Hz: about one independent sample in sixty (the issue's estimate)
+    tau = correlation_time(_band_limited(rng, (20000, 2), 1.0))
+    assert 40 < tau < 90
+
+
+def test_blocks_never_straddle_records() -> None:
+    record = np.repeat([0, 1, 2], [250, 130, 400])
+    ids = block_ids(len(record), record, 100)
+    for b in np.unique(ids):
+        assert len(np.unique(record[ids == b])) == 1
+
+
+@pytest.mark.slow
+def test_stds_cover_the_truth_at_the_stated_rate_on_band_limited_data() -> None:
+    """Monte Carlo: +-1 and +-2 std cover 68 % and 95 % of 400 fits on band-limited noise (binomial bands)."""
+    n = 5000
+    X = _columns(n)
+    truth = np.array([0.1, 0.05, -0.2])
+    z = []
+    for seed in range(400):
+        r = np.einsum("knp,p->kn", X, truth) + _band_limited(np.random.default_rng(seed), (n, 2), 0.05)
+        fit = fit_bounded(X, r, np.ones(2))
+        z.append((fit.coef - truth) / np.sqrt(np.diag(fit.cov)))
+    z = np.abs(np.array(z))
+    for k, rate in ((1.0, 0.683), (2.0, 0.954)):
+        cover = np.mean(z < k, axis=0)
+        band = 3 * np.sqrt(rate * (1 - rate) / len(z))
+        assert np.all(cover > rate - band), (k, cover)
+        assert np.all(cover < rate + band + 0.03), (k, cover)  # honest, not merely inflated
+
+
+def test_white_noise_stds_are_not_inflated_needlessly() -> None:
+    """On white noise the correlation time is ~1 and the std matches least squares' own."""
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(4000, 2, 2))
+    r = np.einsum("knp,p->kn", X, [0.3, -0.1]) + rng.normal(0, 0.1, (4000, 2))
+    fit = fit_bounded(X, r, np.ones(2))
+    A = X.reshape(-1, 2)
+    ols = 0.1**2 * np.linalg.inv(A.T @ A)
+    assert np.sqrt(np.diag(fit.cov)) == pytest.approx(np.sqrt(np.diag(ols)), rel=0.15)
+
+
+def test_a_fit_that_wants_to_leave_its_range_ends_at_the_bound_and_says_so() -> None:
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(2000, 1, 2))
+    r = np.einsum("knp,p->kn", X, [-0.05, 0.2]) + rng.normal(0, 0.01, (2000, 1))
+    fit = fit_bounded(X, r, np.ones(1), lower=np.array([0.0, -np.inf]))
+    assert fit.coef[0] == pytest.approx(0.0, abs=1e-12)
+    assert list(fit.bound_flags()) == [-1, 0]
+    assert fit.cov[0, 0] == 0.0 and fit.cov[1, 1] > 0
+    assert fit.coef[1] == pytest.approx(0.2, abs=0.01)
