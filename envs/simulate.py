@@ -80,13 +80,14 @@ def simulate_tracking(
     if any(a.is_servo for a in actuation.actuators):
         # a servo's setpoint comes from a fast trajectory generator, not a 2 ms staircase: a kp 2000 servo on
         # a light wrist answers each step within a physics step, and the sampled torque would be its spike
-        def targets(k: int, fraction: float, ctrl: np.ndarray) -> np.ndarray:
-            q_sub, dq_sub, _ = reference.evaluate(np.array([t[k] + fraction * (t[1] - t[0])]))
-            out = ctrl.copy()
-            servo = actuation.ctrl_for_reference(np.zeros(plant.nv), q_sub[0], dq_sub[0], q_sub[0], dq_sub[0])
+        servo = np.array([a.is_servo for a in actuation.actuators])
+
+        def targets(times: np.ndarray) -> np.ndarray:
+            q_sub, dq_sub, _ = reference.evaluate(times)
+            out = np.full((len(times), len(servo)), np.nan)
             for i, a in enumerate(actuation.actuators):
                 if a.is_servo:
-                    out[i] = servo[i]
+                    out[:, i] = a.gear * (q_sub[:, a.joint] if a.kind == "position" else dq_sub[:, a.joint])
             return out
 
     return _run(plant, t, control, q0=q_ref[0], dq0=dq_ref[0], sensor=sensor, rng=rng, targets=targets)
@@ -184,10 +185,10 @@ def _run(
     dq0: np.ndarray,
     sensor: SensorModel,
     rng: np.random.Generator,
-    targets: Callable[[int, float, np.ndarray], np.ndarray] | None = None,
+    targets: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Dataset:
-    """Simulate sample by sample: ctrl from `control` at each sample (held), or, where `targets` is given,
-    updated at every physics step from it (targets(k, fraction of the sample interval, held ctrl))."""
+    """Simulate sample by sample: ctrl from `control` at each sample (held), except where `targets` (times
+    (M,) -> ctrl (M, nu), NaN where the held ctrl applies) sets it at every physics step."""
     m = _resolved_model(plant, q0)
     d = mujoco.MjData(m)
     dt_sample = t[1] - t[0]
@@ -200,6 +201,9 @@ def _run(
     n, nv = len(t), m.nv
     q, dq, ddq, applied, cmd, constraint = (np.empty((n, nv)) for _ in range(6))
     implicit = _implicit_damping(plant, m)
+    fine = None
+    if targets is not None and substeps > 1:
+        fine = targets((t[:, None] + np.arange(substeps)[None, :] * m.opt.timestep).ravel()).reshape(n, substeps, -1)
     d.qpos[:], d.qvel[:] = q0, dq0
     for k in range(n):
         state = d.qpos.copy(), d.qvel.copy()
@@ -215,8 +219,8 @@ def _run(
             applied[k] = applied[k] + implicit * step
         held = d.ctrl.copy()
         for i in range(1, substeps):
-            if targets is not None:
-                d.ctrl[:] = targets(k, i / substeps, held)
+            if fine is not None:
+                d.ctrl[:] = np.where(np.isnan(fine[k, i]), held, fine[k, i])
             mujoco.mj_step(m, d)
         if not np.all(np.isfinite(d.qpos)):
             raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")

@@ -43,7 +43,7 @@ from identify.diagnose import (
 )
 from identify.excitation_check import check_excitation
 
-__all__ = ["CONF_DIR", "main", "reference_models", "run"]
+__all__ = ["CONF_DIR", "data_paths", "main", "reference_models", "run"]
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -74,10 +74,39 @@ def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceMo
     return out
 
 
-def _paths(cfg: DictConfig) -> list[Path]:
-    raw = cfg.data.path
-    items = list(raw) if OmegaConf.is_list(raw) else [raw]
-    return [Path(str(p)) for p in items]
+def _as_list(raw: Any) -> list[str]:
+    return [str(p) for p in (list(raw) if OmegaConf.is_list(raw) or isinstance(raw, list) else [raw])]
+
+
+def _config_folders() -> list[Path]:
+    """The folders configs are read from: Hydra's file search path (with --config-dir), else conf/."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        sources = HydraConfig.get().runtime.config_sources
+        return [Path(s.path) for s in sources if s.schema == "file"]
+    return [CONF_DIR]
+
+
+def _data_config_folder(cfg: DictConfig) -> Path | None:
+    """The folder of the data config file whose own `path` is the one in use (None: given on the command line)."""
+    name = cfg.data.get("name")
+    for folder in _config_folders() if name else []:
+        candidate = folder / "data" / f"{name}.yaml"
+        if not candidate.is_file():
+            continue
+        own = OmegaConf.to_container(OmegaConf.load(candidate), resolve=True).get("path")  # type: ignore[union-attr]
+        if own not in (None, "???") and _as_list(own) == _as_list(cfg.data.path):
+            return candidate.parent
+    return None
+
+
+def data_paths(cfg: DictConfig) -> list[Path]:
+    """The data files; a data config's relative paths are relative to that config's own folder, a path given on
+    the command line to the current directory."""
+    folder = _data_config_folder(cfg)
+    out = [Path(p) for p in _as_list(cfg.data.path)]
+    return [p if p.is_absolute() or folder is None else (folder / p).resolve() for p in out]
 
 
 def _band_hz(cfg: DictConfig) -> float | None:
@@ -109,7 +138,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     opts = cfg.diagnose
     out = folder.path
-    paths = _paths(cfg)
+    paths = data_paths(cfg)
     columns = OmegaConf.to_container(cfg.data.columns) if cfg.data.get("columns") is not None else None
     stage = _stages()
     stage(f"reading {len(paths)} file(s)")

@@ -250,6 +250,23 @@ def _sweep_values(text: str) -> list[str] | None:
     return [v.strip() for v in text.split(",") if v.strip()]
 
 
+def user_config_dirs(argv: Sequence[str]) -> list[Path]:
+    """Config folders a command line adds: `--config-dir DIR` (or `-cd DIR`, `--config-dir=DIR`) and
+    `hydra.searchpath=[file://DIR, ...]`."""
+    out: list[Path] = []
+    for i, arg in enumerate(argv):
+        if arg in ("--config-dir", "-cd") and i + 1 < len(argv):
+            out.append(Path(argv[i + 1]).expanduser())
+        elif arg.startswith("--config-dir="):
+            out.append(Path(arg.split("=", 1)[1]).expanduser())
+        elif arg.startswith("hydra.searchpath="):
+            for item in arg.split("=", 1)[1].strip("[]").split(","):
+                item = item.strip().strip("'\"")
+                if item.startswith("file://"):
+                    out.append(Path(item.removeprefix("file://")).expanduser())
+    return out
+
+
 def check_group_overrides(argv: Sequence[str], conf_dir: Path) -> None:
     """Refuse a command-line value of one of our config groups (`system=...`, `estimator=...`) that names no
     config, listing the valid choices, before Hydra composes a config or a sweep starts a job.
@@ -260,7 +277,8 @@ def check_group_overrides(argv: Sequence[str], conf_dir: Path) -> None:
     Raises:
         ConfigError: the first unknown group value.
     """
-    groups = {p.name for p in conf_dir.iterdir() if p.is_dir() and p.name != "hydra"}
+    folders = [conf_dir, *user_config_dirs(argv)]
+    groups = {p.name for f in folders if f.is_dir() for p in f.iterdir() if p.is_dir() and p.name != "hydra"}
     for arg in argv:
         match = _OVERRIDE.match(arg)
         if not match or arg.startswith("~"):
@@ -271,7 +289,7 @@ def check_group_overrides(argv: Sequence[str], conf_dir: Path) -> None:
         values = _sweep_values(match.group(3))
         if values is None:
             continue
-        valid = sorted(p.stem for p in (conf_dir / group).glob("*.yaml"))
+        valid = sorted({p.stem for f in folders for p in (f / group).glob("*.yaml")})
         for value in values:
             if value not in valid and value != "null" and "/" not in value:
                 sweep = f" (in the sweep {arg})" if len(values) > 1 else ""

@@ -4,6 +4,8 @@ and <system>_calibrated.xml, and a failure leaves nothing half-written."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -116,3 +118,51 @@ def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=r"a\.csv.*excite"):
         cli.run(_config(paths, out))
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_data_configs_paths_are_relative_to_that_config_not_the_working_directory(tmp_path: Path) -> None:
+    """A user's data config kept outside the repository (--config-dir) names its logs relative to itself."""
+    from envs.sensors import SensorModel
+    from envs.simulate import simulate_open_loop
+
+    plant = load_plant("pendulum")
+    sensor = SensorModel(500.0, sigma_tau=np.array([0.01]), sigma_q=1.7e-5, q_resolution=2.4e-5)
+    logs = tmp_path / "conf" / "data" / "logs"
+    logs.mkdir(parents=True)
+    for i, seed in enumerate((1, 2)):
+
+        def drive(t: np.ndarray, seed: int = seed) -> np.ndarray:
+            return 0.8 * np.sin(2 * np.pi * 0.4 * t)[:, None] + 0.3 * np.sin(2 * np.pi * 1.1 * t + seed)[:, None]
+
+        data = simulate_open_loop(
+            plant,
+            drive,
+            duration_s=8.0,
+            sensor=sensor,
+            rng=np.random.default_rng(seed),
+        )
+        write_csv(data, logs / f"run{i}.csv")
+    # the format's own fields (conf/data/csv.yaml), with paths relative to this file
+    text = (cli.CONF_DIR / "data" / "csv.yaml").read_text().replace("name: csv", "name: mylogs")
+    text = text.replace("path: ???", "path: [logs/run0.csv, logs/run1.csv]")
+    (tmp_path / "conf" / "data" / "mylogs.yaml").write_text(text)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    proc = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "sysid-diagnose"),
+            "--config-dir",
+            str(tmp_path / "conf"),
+            "system=pendulum",
+            "data=mylogs",
+            "diagnose.recording=false",
+            f"hydra.run.dir={tmp_path / 'out'}",
+        ],
+        cwd=elsewhere,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "out" / "diagnosis.json").is_file()

@@ -102,25 +102,8 @@ def _flat(X: np.ndarray, sw: np.ndarray) -> np.ndarray:
     return (X * sw[None, :, None]).reshape(-1, X.shape[-1])
 
 
-def fit_columns(
-    X: np.ndarray,
-    r: np.ndarray,
-    weights: np.ndarray,
-    *,
-    lower: np.ndarray | None = None,
-    upper: np.ndarray | None = None,
-    record: np.ndarray | None = None,
-) -> LinearFit:
-    """Weighted least squares r ~ X c within bounds, with honest covariance (`statistics.fit_bounded`).
-
-    Args:
-        X: (N, nv, p) columns.
-        r: (N, nv) residual torque [N m].
-        weights: (nv,) per-joint weights (1 / sigma_j^2).
-        lower, upper: (p,) bounds of the coefficients (None: unbounded).
-        record: (N,) record index of each row.
-    """
-    return fit_bounded(X, r, weights, lower=lower, upper=upper, record=record)
+# weighted least squares of residual columns within bounds, with honest covariance (one implementation)
+fit_columns = fit_bounded
 
 
 def _independence(basis: np.ndarray, col: np.ndarray) -> float:
