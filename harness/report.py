@@ -157,7 +157,10 @@ def _normalised_rms(record: dict[str, Any]) -> dict[str, float]:
     p = record.get("payload") or {}
     if record.get("status") != "ok" or record.get("kind") != "run":
         return {}
-    rms, noise = p["validation"]["torque_rms"], p["validation"].get("noise_std", {})
+    validation = p.get("validation") if isinstance(p, dict) else None
+    if not isinstance(validation, dict):  # a job file without it (written by hand, or cut short) shows no bar
+        return {}
+    rms, noise = validation.get("torque_rms") or {}, validation.get("noise_std") or {}
     return {j: float(rms[j]) / float(noise[j]) for j in rms if noise.get(j)}
 
 

@@ -144,10 +144,10 @@ def test_calibrated_mjcf_holds_the_custom_effect_and_reproduces_the_prediction(t
 
 def test_band_filtered_torques_of_every_validation_record_are_exposed() -> None:
     _, dg = diagnose_case("pendulum", [Injected("viscous_friction", "swing", 0.01)], seed=3)
-    (rec,) = dg.series["validation_records"]
+    (rec,) = dg.series["records"]
     assert rec["source"] == "testbed_validation"
     n = len(rec["time"])
-    for key in ("tau_measured", "tau_nominal", "tau_calibrated", "tau_rigid_body_refit"):
+    for key in ("tau_measured", "tau_nominal", "tau_calibrated"):
         assert rec[key].shape == (n, 1)
     rms = float(np.sqrt(np.mean((rec["tau_measured"] - rec["tau_calibrated"]) ** 2)))
     assert rms == pytest.approx(dg.models["calibrated"]["torque_rms"]["swing"], rel=1e-9)
