@@ -6,8 +6,9 @@ centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `m
 collision geoms, a closed form between capsules; the floor is the world plane z = 0.
 
 Pairs that can never be apart are left out: shapes on the same or adjacent bodies (parent and child), pairs
-MuJoCo excludes from contact, and pairs (or floor checks) already closer than the clearance at the
-reference pose (links built to touch, the first link on its base).
+MuJoCo excludes from contact, and pairs (or floor checks) already closer than the clearance at a reference
+pose (links built to touch, the first link on its base): the model's `home` keyframe, its qpos0 and the
+middle of the joint ranges (where designs are centred).
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ class Clearance:
     """The smallest distance between an arm's non-adjacent links and to the floor, along joint angles."""
 
     def __init__(self, plant: Plant, shapes: list[_Shape], q_ref: np.ndarray, clearance_m: float) -> None:
+        """`q_ref` (nv,) or (k, nv): the reference pose(s); pairs closer than the clearance at any are left out."""
         self.plant, self.shapes, self.clearance_m = plant, shapes, float(clearance_m)
         m = plant.mj_model
         parent = m.body_parentid
@@ -70,8 +72,8 @@ class Clearance:
         self.pairs = candidates
         self.floor = list(range(len(shapes)))
         pair_d, floor_d = self._distances(np.atleast_2d(q_ref))
-        self.pairs = [p for p, d in zip(self.pairs, pair_d[0], strict=True) if d > clearance_m]
-        self.floor = [k for k, d in zip(self.floor, floor_d[0], strict=True) if d > clearance_m]
+        self.pairs = [p for p, d in zip(self.pairs, pair_d.min(axis=0), strict=True) if d > clearance_m]
+        self.floor = [k for k, d in zip(self.floor, floor_d.min(axis=0), strict=True) if d > clearance_m]
 
     def _distances(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = self.plant.mj_model
@@ -99,13 +101,13 @@ class Clearance:
             floor_d[:, k] = np.minimum(ends[i, 0, :, 2], ends[i, 1, :, 2]) - self.shapes[i].radius
         return pair_d, floor_d
 
-    def min_distance(self, q: np.ndarray, *, max_points: int = 400) -> float:
-        """Smallest distance [m] over the samples q (N, nv) (at most `max_points` of them, evenly spaced)."""
+    def min_distance(self, q: np.ndarray, *, max_points: int = 1000) -> float:
+        """Smallest distance [m] over the samples q (N, nv): every k-th sample, k the smallest stride that leaves
+        at most `max_points` (so a grid and the same grid 4x denser are checked on the same samples)."""
         if not self.pairs and not self.floor:
             return float("inf")
         q = np.atleast_2d(q)
-        if len(q) > max_points:
-            q = q[np.linspace(0, len(q) - 1, max_points).round().astype(int)]
+        q = q[:: int(np.ceil(len(q) / max_points))]
         pair_d, floor_d = self._distances(q)
         return float(min(pair_d.min(initial=np.inf), floor_d.min(initial=np.inf)))
 

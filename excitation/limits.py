@@ -102,7 +102,7 @@ def limits_for(
         range_margin: fraction of each finite joint range kept free at both ends.
         torque_margin: fraction of the actuator's torque limit the nominal model may use.
         clearance_m: smallest distance kept between non-adjacent links and to the floor [m] (None: unchecked),
-            referenced to the model's `home` keyframe (else its qpos0) to leave out pairs built to touch.
+            referenced to the model's `home` keyframe, qpos0 and range middles to leave out pairs built to touch.
     """
     n = plant.nv
     lo, hi = plant.q_range[:, 0].copy(), plant.q_range[:, 1].copy()
@@ -118,12 +118,14 @@ def limits_for(
         ddq_max=np.broadcast_to(np.asarray(acceleration, dtype=float), (n,)).copy(),
         tau_max=tau,
         joint_names=plant.joint_names,
-        clearance=None if clearance_m is None else clearance_for(plant, clearance_m, _home(plant)),
+        clearance=None if clearance_m is None else clearance_for(plant, clearance_m, _reference_poses(plant, lo, hi)),
     )
 
 
-def _home(plant: Plant) -> np.ndarray:
+def _reference_poses(plant: Plant, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(k, nv) the model's `home` keyframe (where it has one), its qpos0 and the middle of the joint ranges."""
     m = plant.mj_model
     key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
-    q = m.key_qpos[key].copy() if key >= 0 else m.qpos0.copy()
-    return np.clip(q, plant.q_range[:, 0], plant.q_range[:, 1])
+    middle = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (np.nan_to_num(lo) + np.nan_to_num(hi)), 0.0)
+    poses = [m.qpos0.copy(), middle] + ([m.key_qpos[key].copy()] if key >= 0 else [])
+    return np.clip(np.array(poses), plant.q_range[:, 0], plant.q_range[:, 1])
