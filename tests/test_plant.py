@@ -11,18 +11,9 @@ import pytest
 from dynamics.errors import ModelError
 from dynamics.plant import MJCF_DIR, SYSTEMS, load_plant
 from dynamics.regressor import ParameterModel
+from dynamics.sampling import random_states
 
 BUILT_IN = [s for s in SYSTEMS if (MJCF_DIR / f"{s}.xml").is_file()]
-
-
-def _random_states(plant, rng, n):  # type: ignore[no-untyped-def]
-    lo = np.where(np.isfinite(plant.q_range[:, 0]), plant.q_range[:, 0], -np.pi)
-    hi = np.where(np.isfinite(plant.q_range[:, 1]), plant.q_range[:, 1], np.pi)
-    return (
-        rng.uniform(lo, hi, size=(n, plant.nv)),
-        rng.normal(0, 3, size=(n, plant.nv)),
-        rng.normal(0, 10, size=(n, plant.nv)),
-    )
 
 
 def _mj_inverse(plant, q, dq, ddq):  # type: ignore[no-untyped-def]
@@ -41,7 +32,7 @@ def _mj_inverse(plant, q, dq, ddq):  # type: ignore[no-untyped-def]
 def test_regressor_times_truth_is_mujoco_inverse_dynamics(system: str) -> None:
     plant = load_plant(system)
     model = ParameterModel(plant, ("armature", "viscous_friction"))
-    q, dq, ddq = _random_states(plant, np.random.default_rng(0), 100)
+    q, dq, ddq = random_states(plant, np.random.default_rng(0), 100)
     q = np.clip(q, plant.q_range[:, 0] * 0.99, plant.q_range[:, 1] * 0.99)  # keep joint limits inactive
     predicted = np.einsum("knp,p->kn", model.regressor(q, dq, ddq), model.truth())
     np.testing.assert_allclose(predicted, _mj_inverse(plant, q, dq, ddq), rtol=0, atol=1e-8)
@@ -54,7 +45,7 @@ def test_regressor_includes_damping_and_armature_when_present(tmp_path: Path) ->
     plant = load_plant(path)
     np.testing.assert_allclose(plant.damping, [0.05, 0.05])
     model = ParameterModel(plant, ("armature", "viscous_friction"))
-    q, dq, ddq = _random_states(plant, np.random.default_rng(1), 50)
+    q, dq, ddq = random_states(plant, np.random.default_rng(1), 50)
     predicted = np.einsum("knp,p->kn", model.regressor(q, dq, ddq), model.truth())
     np.testing.assert_allclose(predicted, _mj_inverse(plant, q, dq, ddq), rtol=0, atol=1e-8)
     rigid_only = np.einsum("knp,p->kn", ParameterModel(plant).regressor(q, dq, ddq), plant.theta)
