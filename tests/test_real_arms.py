@@ -148,25 +148,16 @@ def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
     if not model.is_file():
         pytest.skip("../shared/robots/ is not beside the project (clone with shared/)")
     out = tmp_path / "conf" / "system" / "so_arm.yaml"
-    proc = subprocess.run(
-        [sys.executable, "-m", "harness.init", str(model), "--out", str(out)],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+
+    def init() -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "harness.init", str(model), "--out", str(out)]
+        return subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
+
+    proc = init()
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
     assert "# " in text and "sigma_tau" in text and "clearance_m" in text
-    again = subprocess.run(
-        [sys.executable, "-m", "harness.init", str(model), "--out", str(out)],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    again = init()
     assert again.returncode == 2 and "exists" in again.stderr  # never overwritten without --force
     cfg = compose_config(["system=so_arm", *FAST], config_dir=tmp_path / "conf")
     assert cfg.system.mjcf == str(model.resolve())
