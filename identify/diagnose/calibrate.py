@@ -329,16 +329,18 @@ def consistent_parameters(
     return fixed
 
 
-def _generic_metric(plant: Plant, n: int = 200) -> np.ndarray:
-    """(10 nv, 10 nv) R of the rigid-body regressor stacked over random states: ||R d|| is the torque change."""
-    W = rigid_body_regressor(plant, *random_states(plant, np.random.default_rng(0), n)).reshape(n * plant.nv, -1)
+def _generic_regressor(plant: Plant, n: int = 200) -> np.ndarray:
+    """(n nv, 10 nv) the rigid-body regressor stacked over random states (the same states on every call)."""
+    return rigid_body_regressor(plant, *random_states(plant, np.random.default_rng(0), n)).reshape(n * plant.nv, -1)
+
+
+def _generic_metric(W: np.ndarray, n: int) -> np.ndarray:
+    """(10 nv, 10 nv) R of the stacked regressor W of n states: ||R d|| is the torque change of a change d."""
     return np.linalg.qr(W, mode="r") / np.sqrt(n)  # type: ignore[no-any-return]
 
 
-def _unobservable(plant: Plant) -> np.ndarray:
-    """(10 nv,) True for standard parameters that never change a joint torque (zero regressor column)."""
-    n = 200
-    W = rigid_body_regressor(plant, *random_states(plant, np.random.default_rng(0), n)).reshape(n * plant.nv, -1)
+def _unobservable(W: np.ndarray) -> np.ndarray:
+    """(10 nv,) True for standard parameters that never change a joint torque (zero column of W)."""
     norms = np.linalg.norm(W, axis=0)
     return norms <= 1e-9 * max(float(norms.max()), 1e-300)
 
@@ -384,10 +386,12 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
     own = own_body_parameters(plant)
     corrected = own + ext.theta_delta
     if np.any(ext.theta_delta):
+        n = 200
+        W = _generic_regressor(plant, n)
         if metric is None:
-            metric = _generic_metric(plant)
+            metric = _generic_metric(W, n)
         corrected = consistent_parameters(plant, corrected, metric, ext.notes, nominal=own)
-        free = _unobservable(plant)
+        free = _unobservable(W)
         corrected = np.concatenate(
             [
                 repair_body(
