@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,7 +15,7 @@ import numpy as np
 
 from dynamics.errors import DataError
 
-__all__ = ["Dataset", "atomic_write", "write_csv"]
+__all__ = ["Dataset", "atomic_write", "scratch_folder", "write_csv"]
 
 
 @dataclass(frozen=True)
@@ -152,3 +156,32 @@ def atomic_write(path: Path, write, *, binary: bool = False) -> None:  # type: i
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: alive
+        return True
+    return True
+
+
+def _remove_orphans(prefix: str) -> None:
+    """Remove `<prefix><pid>_*` folders in the temporary folder whose process is gone (a SIGKILL, an OOM kill
+    or a power cut gives a process no chance to clean up; the next one does)."""
+    pattern = re.compile(re.escape(prefix) + r"(\d+)_")
+    for p in Path(tempfile.gettempdir()).glob(f"{prefix}*"):
+        match = pattern.match(p.name)
+        if match and p.is_dir() and not _alive(int(match.group(1))):
+            shutil.rmtree(p, ignore_errors=True)
+
+
+@contextmanager
+def scratch_folder(prefix: str) -> Iterator[Path]:
+    """A private temporary folder `<prefix><pid>_*`, removed on exit; the folders of killed processes with
+    the same prefix are removed on entry."""
+    _remove_orphans(prefix)
+    with tempfile.TemporaryDirectory(prefix=f"{prefix}{os.getpid()}_") as tmp:
+        yield Path(tmp)

@@ -51,6 +51,7 @@ _MIN_SAMPLE_RATE_HZ = 5.0  # slower sampling is a time column in other units (ms
 _MAX_SAMPLE_RATE_HZ = 1e5
 _RATE_WINDOW = 2 * _GLITCH_MAX_RUN + 1  # steps in the running median that bounds the speed without dq
 _SNIFF_BYTES = 1 << 16
+_BLOCK_ROWS = 200_000  # rows read at a time: a block of a wide file is a few tens of MB
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
 
 
@@ -120,26 +121,16 @@ def read_measured(
     """
     path = Path(path)
     src = str(path)
-    header, table = _read_table(path)
+    header = _read_header(path)
     sources, ignored = _resolve_columns(plant, header, columns, src)
-    values = {name: _scaled(table[:, c.index], c) for name, c in sources.items()}
+    arrays, values, rows_read = _read_body(path, header, sources, plant)
     labels = {name: f"column '{c.name}'" + (f" ({name})" if c.name != name else "") for name, c in sources.items()}
     _check_finite(values, labels, src)
-    t = np.ascontiguousarray(values["time"])
+    t = values["time"]
     _check_time(t, labels["time"], src)
     _check_length(len(t), min_samples, src, "rows")
-
     names = plant.joint_names
-    arrays: dict[str, np.ndarray | None] = {"q": np.column_stack([values[f"q_{n}"] for n in names])}
-    arrays["dq"] = _optional_block(values, [f"dq_{n}" for n in names], range(plant.nv), plant.nv, src)
-    act = [j for j in range(plant.nv) if plant.actuated[j]]
-    tau = np.zeros((len(t), plant.nv))
-    for j in act:
-        tau[:, j] = values[f"tau_{names[j]}"]
-    arrays["tau"] = tau
-    arrays["tau_cmd"] = _optional_block(values, [f"tau_cmd_{names[j]}" for j in act], act, plant.nv, src)
-    rows_read = len(table)
-    del values, table  # the blocks above hold copies: the table's memory can go
+    del values
     _check_angle_units(plant, t, arrays, labels, src)
 
     rows = np.arange(len(t))
@@ -159,7 +150,8 @@ def read_measured(
         t, rows, arrays = t[start:], rows[start:], _cut(arrays, start, len(t))
 
     head, tail = 0, 0
-    q = np.array(arrays["q"])
+    q = arrays["q"]
+    assert q is not None
     for j, n in enumerate(names):
         dq = arrays["dq"]
         fixed, found, h, tl = _repair_joint(
@@ -283,7 +275,7 @@ def _not_utf8(path: Path, data: bytes, at: int) -> DataError:
     )
 
 
-def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
+def _read_header(path: Path) -> list[str]:
     _check_readable(path)
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
@@ -292,22 +284,86 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
         raise DataError(f"{path}: the header row (line 1) cannot be read as CSV text: {err}") from None
     if not header or header == [""]:
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # an empty body is reported below, not warned about
-            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8-sig", comments=None)
-    except UnicodeDecodeError as err:
-        raise DataError(
-            f"{path}: not UTF-8 text ({err.reason} at byte {err.start} of a block): save it as UTF-8"
-        ) from None
-    except ValueError as err:
-        _locate_bad_cell(path, header)
-        raise DataError(f"{path}: cannot read the rows as numbers: {err}") from err
-    if table.shape[0] == 0:
+    return header
+
+
+def _line_count(path: Path) -> int:
+    """Newlines in the file, plus one for a last line without one: an upper bound on its data rows + 1."""
+    count, last = 0, b"\n"
+    with path.open("rb") as f:
+        while block := f.read(1 << 24):
+            count += block.count(b"\n")
+            last = block[-1:]
+    return count + (last != b"\n")
+
+
+def _read_body(
+    path: Path, header: list[str], sources: dict[str, _Column], plant: Plant
+) -> tuple[dict[str, np.ndarray | None], dict[str, np.ndarray], int]:
+    """The used columns, read block by block (numpy's C reader) straight into the (N, nv) arrays of the dataset:
+    memory is the dataset itself plus one block, whatever the file's length.
+
+    Returns:
+        arrays: q, dq, tau, tau_cmd ((N, nv); dq and tau_cmd None when absent).
+        values: each used column by our name, as a view into `arrays`.
+        rows: the data rows read.
+    """
+    names, nv, act = plant.joint_names, plant.nv, [j for j in range(plant.nv) if plant.actuated[j]]
+    for keys in ([f"dq_{n}" for n in names], [f"tau_cmd_{names[j]}" for j in act]):
+        present = [k in sources for k in keys]
+        if any(present) and not all(present):
+            lacking = [k for k, p in zip(keys, present, strict=True) if not p]
+            raise DataError(f"{path}: missing column(s) {', '.join(lacking)}: give them for every joint or for none")
+    capacity = max(_line_count(path) - 1, 1)
+    arrays: dict[str, np.ndarray | None] = {
+        "time": np.empty(capacity),
+        "q": np.empty((capacity, nv)),
+        "dq": np.empty((capacity, nv)) if f"dq_{names[0]}" in sources else None,
+        "tau": np.zeros((capacity, nv)),
+        "tau_cmd": np.zeros((capacity, nv)) if act and f"tau_cmd_{names[act[0]]}" in sources else None,
+    }
+    where: dict[str, tuple[str, int | None]] = {"time": ("time", None)}
+    for j, joint in enumerate(names):
+        where[f"q_{joint}"], where[f"dq_{joint}"] = ("q", j), ("dq", j)
+        where[f"tau_{joint}"], where[f"tau_cmd_{joint}"] = ("tau", j), ("tau_cmd", j)
+
+    def target(name: str) -> np.ndarray:
+        block, j = where[name]
+        out = arrays[block]
+        assert out is not None
+        return out if j is None else out[:, j]
+
+    n = 0
+    with path.open(newline="", encoding="utf-8-sig") as f:
+        f.readline()
+        while True:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UserWarning)  # the empty read after the last block
+                    table = np.loadtxt(f, delimiter=",", ndmin=2, max_rows=_BLOCK_ROWS, comments=None)
+            except UnicodeDecodeError as err:
+                raise DataError(
+                    f"{path}: not UTF-8 text ({err.reason} at byte {err.start} of a block): save it as UTF-8"
+                ) from None
+            except ValueError as err:
+                _locate_bad_cell(path, header)
+                raise DataError(f"{path}: cannot read the rows as numbers: {err}") from err
+            if table.shape[0] == 0:
+                break
+            if table.shape[1] != len(header):
+                raise DataError(f"{path}: rows have {table.shape[1]} fields but the header names {len(header)} columns")
+            m = min(len(table), capacity - n)
+            for name, c in sources.items():
+                target(name)[n : n + m] = _scaled(table[:m, c.index], c)
+            n += m
+            if m < len(table) or len(table) < _BLOCK_ROWS:
+                break
+    if n == 0:
         raise DataError(f"{path}: no data rows after the header")
-    if table.shape[1] != len(header):
-        raise DataError(f"{path}: rows have {table.shape[1]} fields but the header names {len(header)} columns")
-    return header, table
+    arrays.update({k: None if v is None else v[:n] for k, v in arrays.items()})
+    values = {name: target(name) for name in sources}
+    del arrays["time"]  # in `values`; the rest are the dataset's blocks
+    return arrays, values, n
 
 
 def _locate_bad_cell(path: Path, header: list[str]) -> None:
@@ -455,21 +511,6 @@ def _check_length(n: int, min_samples: int, src: str, what: str) -> None:
         raise DataError(f"{src}: too little data: {n} {what}, at least {min_samples} are needed")
 
 
-def _optional_block(
-    values: dict[str, np.ndarray], keys: list[str], joints: Sequence[int], nv: int, src: str
-) -> np.ndarray | None:
-    present = [k in values for k in keys]
-    if not any(present):
-        return None
-    if not all(present):
-        lacking = [k for k, p in zip(keys, present, strict=True) if not p]
-        raise DataError(f"{src}: missing column(s) {', '.join(lacking)}: give them for every joint or for none")
-    out = np.zeros((len(values["time"]), nv))
-    for k, j in zip(keys, joints, strict=True):
-        out[:, j] = values[k]
-    return out
-
-
 def _check_angle_units(
     plant: Plant, t: np.ndarray, arrays: dict[str, np.ndarray | None], labels: dict[str, str], src: str
 ) -> None:
@@ -560,19 +601,25 @@ def _repair_joint(
     dt = np.diff(t)
     dt_eff = np.maximum(dt, np.median(dt))  # timestamps jitter; the motion does not go faster for it
     s = np.diff(x)
+    # the statistics below work in place on their own temporaries (a long log's copies add up otherwise)
     if max_speed is not None:
         speed = float(max_speed)
     elif v is not None:
-        speed = 3.0 * float(np.percentile(np.abs(v), 99.9))
+        speed = 3.0 * float(np.percentile(np.abs(v), 99.9, overwrite_input=True))
     else:
         # the angle's own rate after a running median over _RATE_WINDOW steps: a glitch of up to
         # _GLITCH_MAX_RUN samples moves two steps of a window, which cannot move its median, so the glitches
         # cannot set the bound that finds them (a percentile of the raw steps could: 1 % of glitch rows is 2 %
         # of the steps, and the 99th percentile was then a glitch's)
         rate = median_filter(np.abs(s) / dt_eff, size=min(_RATE_WINDOW, len(s)), mode="nearest")
-        speed = 3.0 * float(np.percentile(rate, 99.9))
-    d2 = np.diff(x, 2)
-    noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if n > 2 else 0.0
+        speed = 3.0 * float(np.percentile(rate, 99.9, overwrite_input=True))
+        del rate
+    noise = 0.0
+    if n > 2:
+        d2 = np.diff(x, 2)
+        d2 -= np.median(d2)
+        noise = 1.4826 * float(np.median(np.abs(d2, out=d2), overwrite_input=True)) / np.sqrt(6.0)
+        del d2
     floor = max(_MIN_JUMP, 10.0 * noise)
     bound = speed * dt_eff + floor
     flagged = np.flatnonzero(np.abs(s) > bound)

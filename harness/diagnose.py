@@ -12,6 +12,7 @@ import re
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -26,11 +27,10 @@ from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, atomic_write
 from envs.measured import read_many
 from envs.split import split_train_validation
-from harness.record import record_diagnosis
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim
 from harness.validate import ConfigError, check_command_line, validate_diagnose_config
-from identify.derivatives import derive_states
+from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
     CANDIDATE_EFFECTS,
     Diagnosis,
@@ -39,6 +39,7 @@ from identify.diagnose import (
     author_accel,
     author_torque,
     diagnose,
+    find_anomalies,
     load_author_model,
 )
 from identify.excitation_check import check_excitation
@@ -151,6 +152,13 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         max_speed=cfg.data.get("max_speed"),
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
+    repairs = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
+    derivatives = str(opts.derivatives)
+    derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
+    anomalies = find_anomalies(datasets)  # at the full rate: thinning would blur a stuck or clipped torque
+    reduced = _reduce(datasets, derivatives, derivative_options, cfg, stage)
+    if reduced is not None:
+        datasets, derivatives, derivative_options = reduced
     validation = cfg.data.get("validation")
     split = split_train_validation(
         datasets,
@@ -167,19 +175,17 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         f"diagnosing {sum(d.n_samples for d in split.train)} training and "
         f"{sum(d.n_samples for d in split.validation)} validation rows"
     )
-    derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
     if "rigid_body" in opts.effects:
-        _check_training_excitation(
-            plant, split.train, tuple(cfg.system.effects), str(opts.derivatives), derivative_options
-        )
+        _check_training_excitation(plant, split.train, tuple(cfg.system.effects), derivatives, derivative_options)
     result = diagnose(
         plant,
         split.train,
         split.validation,
         rng=np.random.default_rng(int(cfg.seed)),
         effects=tuple(opts.effects),
-        derivatives=str(opts.derivatives),
+        derivatives=derivatives,
         derivative_options=derivative_options,
+        anomalies=anomalies,
         selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
         window_s=float(opts.window_s),
         references=references,
@@ -190,7 +196,9 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     payload = result.to_dict(mjcf_name=mjcf_name)
     payload["seed"] = int(cfg.seed)
     payload["split"] = split.describe()
-    payload["repairs"] = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
+    payload["repairs"] = repairs
+    if reduced is not None:
+        payload["reduced"] = {d.source: d.meta["reduced"] for d in datasets}
     payload["config"] = OmegaConf.to_container(cfg, resolve=True)
     stage("writing the outputs")
     folder.retire()
@@ -200,6 +208,40 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     print(_summary(payload))
     print(f"outputs in {out}")
     return to_jsonable(payload)
+
+
+def _reduce(
+    datasets: list[Dataset], method: str, options: dict[str, Any], cfg: DictConfig, stage: Callable[[str], None]
+) -> tuple[list[Dataset], str, dict[str, Any]] | None:
+    """Long logs thinned to `diagnose.max_rows` (states derived at the full rate first); None when they fit.
+
+    The kept rate never falls below 2.5 x the larger of the analysis band and twice the motion's own bandwidth
+    (`excitation_bandwidth_hz`), so the thinned states and torques keep everything the motion excites.
+
+    Returns:
+        The reduced records, and the derivative method and options that read their states ('given').
+    """
+    limit = cfg.diagnose.get("max_rows")
+    total = sum(d.n_samples for d in datasets)
+    if limit is None or total <= int(limit) or method in ("simulator", "given"):
+        return None
+    band = float(_band_hz(cfg) or 0.0)
+    out = []
+    for i in range(len(datasets)):
+        # measured dq is not needed once states are derived from q: it goes now, the rest of the record after it
+        data, datasets[i] = replace(datasets[i], dq=None), None  # type: ignore[call-overload]
+        fs = 1.0 / data.dt
+        # the motion's bandwidth from (at most) its first 2^20 rows: a spectrum of the whole log is ~10x its memory
+        keep_hz = max(band, 2.0 * excitation_bandwidth_hz(data.q[: 1 << 20], fs))
+        k = reduction_factor(total, fs, max_rows=int(limit), band_hz=keep_hz)
+        stage(
+            f"{Path(data.source).name}: {data.n_samples} rows at {fs:.4g} Hz; states at the full rate, then every "
+            f"{k}th row ({fs / k:.4g} Hz; states and torque anti-aliased at {fs / k / 2.5:.3g} Hz, the motion "
+            f"spans {keep_hz / 2:.3g} Hz)"
+        )
+        out.append(reduce_record(data, method, k, **options))
+        del data
+    return out, "given", {}
 
 
 def _stages() -> Callable[[str], None]:
@@ -241,6 +283,8 @@ def _write_outputs(
     written: list[Path] = []
     steps: list[tuple[Path, Callable[[Path], None]]] = []
     if record:
+        from harness.record import record_diagnosis  # rerun (and pyarrow) only when recording: ~60 MB less memory
+
         steps.append(
             (
                 out / "diagnosis.rrd",

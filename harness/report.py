@@ -244,7 +244,8 @@ def _title(column: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point `sysid-report <sweep dir>`."""
+    """Console entry point `sysid-report <sweep dir>`: 0 when every job finished, 1 when any failed (the report
+    lists them and is written either way), 2 when no report could be made."""
     parser = argparse.ArgumentParser(prog="sysid-report", description=__doc__.splitlines()[0])
     parser.add_argument("sweep", type=Path, help="a Hydra multirun folder, e.g. multirun/2026-11-23_12-00-00")
     args = parser.parse_args(argv)
@@ -260,10 +261,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sysid-report: error: cannot write the report into {args.sweep}: {err.strerror or err}", file=sys.stderr)
         return 2
     print((args.sweep / "report.md").read_text())
-    for row in rows:
-        if row["status"] != "ok":
-            print(f"sysid-report: job {row['job']} failed: {row['error']}", file=sys.stderr)
-    return 0
+    failed = [row for row in rows if row["status"] != "ok"]
+    for row in failed:
+        print(f"sysid-report: job {row['job']} failed: {row['error']}", file=sys.stderr)
+    return 1 if failed else 0  # the report is written either way; a script sees that jobs failed
 
 
 if __name__ == "__main__":

@@ -228,6 +228,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     _number(cfg, "diagnose.cutoff_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "diagnose.band_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "diagnose.window_s", low=0.0, low_open=True)
+    _number(cfg, "diagnose.max_rows", integer=True, low=1000, optional=True)
     _number(cfg, "data.validation_fraction", low=0.0, low_open=True, high=0.9)
     _number(cfg, "data.min_samples", integer=True, low=2)
     _number(cfg, "data.max_speed", low=0.0, low_open=True, optional=True)
@@ -296,6 +297,21 @@ def check_group_overrides(argv: Sequence[str], conf_dir: Path) -> None:
                 raise ConfigError(f"unknown {group} {value!r}{sweep}; valid choices: {', '.join(valid)}")
 
 
+def _first_job(overrides: list[str]) -> list[str]:
+    """A sweep's overrides with each sweep (`a,b`, `range(..)`, `choice(..)`) at its first value: what the
+    first job composes. The keys are every job's, so an unknown key or a malformed override shows here."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out = []
+    for o in OverridesParser.create().parse_overrides(overrides):
+        if o.is_sweep_override():
+            first = next(iter(o.sweep_string_iterator()), None)
+            out.append(f"{o.get_key_element()}={first}" if first is not None else o.input_line or "")
+        else:
+            out.append(o.input_line or "")
+    return out
+
+
 def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) -> None:
     """Everything about a command line that can be checked before Hydra runs it: the config-group values (all
     of a sweep's), and for a single run that the overrides compose (an unknown key, a malformed value), so that
@@ -305,15 +321,18 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         ConfigError: the first problem found.
     """
     check_group_overrides(argv, conf_dir)
-    if any(a.startswith("-") for a in argv):  # -m, --help, --cfg ...: left to Hydra
+    overrides = [a for a in argv if a not in ("-m", "--multirun")]
+    if any(a.startswith("-") for a in overrides):  # --help, --cfg, --config-dir ...: left to Hydra
         return
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
     try:
+        if len(overrides) < len(argv):  # a sweep: its first job's overrides stand for all (same keys)
+            overrides = _first_job(overrides)
         with initialize_config_dir(str(conf_dir), version_base=None):
-            compose(config_name, overrides=list(argv), return_hydra_config=True)
+            compose(config_name, overrides=overrides, return_hydra_config=True)
     except (HydraException, OmegaConfBaseException) as err:
         lines = [ln.strip() for ln in str(err).splitlines() if ln.strip() and not ln.startswith("See https")]
         cause = err.__cause__

@@ -9,6 +9,8 @@
   `harmonics_only` every bin that is not a harmonic of the excitation (pure noise) is dropped.
 - `kalman`: Rauch-Tung-Striebel smoother of a white-jerk model (state q, dq, ddq per joint), with the
   jerk intensity chosen so that the smoother's (zero-phase, 6th-order) cut-off sits at `cutoff_hz`.
+- `given`: the dataset's own q, dq and ddq, derived before (`reduce_record`: a long record's states derived at
+  its full rate, then thinned to what its band needs).
 
 Every method takes `cutoff_hz` (None: `cutoff_factor` times the excitation's bandwidth, measured from the
 spectrum of q by `excitation_bandwidth_hz`) and `decimate` (keep every k-th row: the filtered signals carry
@@ -27,7 +29,7 @@ from scipy import linalg, signal
 from dynamics.errors import DataError
 from envs.dataset import Dataset
 
-__all__ = ["DERIVATIVES", "States", "derive_states", "excitation_bandwidth_hz"]
+__all__ = ["DERIVATIVES", "States", "derive_states", "excitation_bandwidth_hz", "reduce_record", "reduction_factor"]
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,13 @@ def _simulator(data: Dataset, *, decimate: int = 1, **_: Any) -> States:
         raise DataError(f"{data.source}: derivatives='simulator' needs a simulated dataset with its exact states")
     valid = _decimated(np.ones(data.n_samples, bool), decimate)
     return States(data.meta["q_true"], data.meta["dq_true"], data.ddq, valid)
+
+
+def _given(data: Dataset, *, decimate: int = 1, **_: Any) -> States:
+    """The dataset's own q, dq, ddq (options of the other methods, such as `cutoff_hz`, are accepted and ignored)."""
+    if data.dq is None or data.ddq is None:
+        raise DataError(f"{data.source}: derivatives='given' needs dq and ddq in the data; use butterworth")
+    return States(data.q, data.dq, data.ddq, _decimated(np.ones(data.n_samples, bool), decimate))
 
 
 def _butterworth(
@@ -241,6 +250,7 @@ def _shift(x: np.ndarray, fraction: float) -> np.ndarray:
 
 DERIVATIVES: dict[str, Callable[..., States]] = {
     "butterworth": _butterworth,
+    "given": _given,
     "kalman": _kalman,
     "simulator": _simulator,
     "spectral": _spectral,
@@ -256,9 +266,110 @@ def derive_states(data: Dataset, method: str, **options: Any) -> States:
     if method not in DERIVATIVES:
         raise ValueError(f"unknown derivative method {method!r}; valid choices: {', '.join(sorted(DERIVATIVES))}")
     states = DERIVATIVES[method](data, **options)
-    if method == "simulator" or data.tau_lead_s == 0:
+    if method in ("simulator", "given") or data.tau_lead_s == 0:
         return states  # the simulator's states already belong to the instant of the torque
     # Evaluate the (smooth, filtered) states at the instant the reported torque belongs to: a zero-order
     # hold's half-sample offset would otherwise bias the parameters by about two standard deviations.
     fraction = data.tau_lead_s / data.dt
     return States(_shift(states.q, fraction), _shift(states.dq, fraction), _shift(states.ddq, fraction), states.valid)
+
+
+# A reduced record keeps its rate at least this many times the band it must carry: states band-limited at
+# the cut-off (order-8 zero-phase roll-off) alias by less than -17 dB at 1.25 x the cut-off.
+_RATE_PER_BAND = 2.5
+
+
+def reduction_factor(n_rows: int, sample_rate_hz: float, *, max_rows: int, band_hz: float) -> int:
+    """Every how many rows a long record keeps one: enough to bring `n_rows` to `max_rows`, but never so many
+    that the kept rate falls below 2.5 x `band_hz` (the derivative cut-off, or the analysis band if higher).
+
+    Returns:
+        k >= 1 (1: the record is kept whole).
+    """
+    if n_rows <= max_rows:
+        return 1
+    wanted = int(np.ceil(n_rows / max_rows))
+    allowed = int(np.floor(sample_rate_hz / (_RATE_PER_BAND * band_hz)))
+    return max(1, min(wanted, allowed))
+
+
+def reduce_record(data: Dataset, method: str, factor: int, **options: Any) -> Dataset:
+    """A long record thinned to every `factor`-th row, with the states derived at its full rate first.
+
+    The states come from `derive_states` on the whole record, one joint at a time (so the derivative filter
+    sees every sample, and memory is the record plus one joint's states); rows the method does not trust are
+    dropped. States and torques then pass the same zero-phase 4th-order Butterworth anti-alias filter, at the
+    kept rate / 2.5, before every `factor`-th row is kept: one linear filter on both sides of the dynamics,
+    which leaves the band below it (where `reduction_factor` keeps the motion) as it was. The result carries
+    q, dq, ddq: diagnose it with derivatives='given'.
+
+    Args:
+        data: the full-rate record.
+        method, options: how its states are derived (`derive_states`).
+        factor: keep every factor-th row (>= 1; 1 returns the states of the whole record).
+
+    Returns:
+        The reduced record: time, q, dq, ddq, tau (and tau_cmd) on the kept rows, `tau_lead_s` 0 (the states
+        already belong to the torque's instant), and `meta["reduced"]` saying what was done.
+    """
+    if int(factor) < 1:
+        raise ValueError(f"factor must be a positive integer, got {factor}")
+    factor = int(factor)
+    fs = _regular_fs(data)
+    anti_alias = fs / factor / _RATE_PER_BAND
+    sos = signal.butter(4, anti_alias, fs=fs, output="sos") if factor > 1 else None
+
+    def thin(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """x (N,) or (N, m) filtered and thinned, a column at a time (the filter's copies are one column's)."""
+        if x.ndim == 2:
+            return np.column_stack([thin(x[:, j], keep) for j in range(x.shape[1])]).reshape(len(keep), -1)
+        return (x if sos is None else signal.sosfiltfilt(sos, x))[keep]
+
+    if options.get("cutoff_hz") is None and method not in ("simulator", "given"):  # one cut-off for all joints
+        options = {**options, "cutoff_hz": _cutoff(data, fs, None, float(options.get("cutoff_factor", 4.0)))}
+    keep: np.ndarray | None = None
+    blocks: dict[str, list[np.ndarray]] = {"q": [], "dq": [], "ddq": []}
+    for j, name in enumerate(data.joint_names):
+        one = Dataset(
+            time=data.time,
+            q=data.q[:, j : j + 1],
+            tau=data.tau[:, j : j + 1],
+            joint_names=(name,),
+            actuated=np.asarray(data.actuated)[j : j + 1],
+            source=data.source,
+            tau_lead_s=data.tau_lead_s,
+        )
+        states = derive_states(one, method, **options)
+        if keep is None:
+            trusted = np.flatnonzero(states.valid)
+            if trusted.size < 2:
+                raise DataError(f"{data.source}: no rows left after the derivative filter's edges")
+            keep = np.arange(trusted[0], trusted[-1] + 1, factor)
+        parts = [states.q, states.dq, states.ddq]
+        del states, one
+        for key in blocks:  # each full-rate state goes as soon as it is thinned
+            blocks[key].append(thin(parts.pop(0), keep))
+    assert keep is not None
+    meta = {k: v for k, v in data.meta.items() if not isinstance(v, np.ndarray)}  # full-rate arrays stay behind
+    meta["reduced"] = {
+        "factor": factor,
+        "rows": int(data.n_samples),
+        "kept": int(len(keep)),
+        "sample_rate_hz": float(fs),
+        "kept_rate_hz": float(fs / factor),
+        "anti_alias_hz": float(anti_alias) if factor > 1 else None,
+        "derivatives": {"method": method, **options},
+    }
+    return Dataset(
+        time=np.ascontiguousarray(data.time[keep]),
+        q=np.hstack(blocks["q"]),
+        tau=thin(data.tau, keep),
+        joint_names=data.joint_names,
+        actuated=data.actuated,
+        dq=np.hstack(blocks["dq"]),
+        ddq=np.hstack(blocks["ddq"]),
+        tau_cmd=None if data.tau_cmd is None else thin(data.tau_cmd, keep),
+        source=data.source,
+        tau_lead_s=0.0,
+        meta=meta,
+    )

@@ -113,3 +113,44 @@ def test_bad_choices_list_the_valid_ones() -> None:
         derive_states(data, "butterworth", edges="mirror")
     with pytest.raises(ValueError, match="whole number"):
         derive_states(data, "spectral", period_s=1.0001 / FS * 1000)
+
+
+def test_reduced_record_keeps_the_full_rate_states_and_the_motions_torque() -> None:
+    """`reduce_record`: states derived at the full rate, then states and torque through one anti-alias filter
+    and every k-th row: where the motion lives (below the filter) they are the full-rate ones, and
+    derivatives='given' reads them back unchanged."""
+    from identify.derivatives import reduce_record, reduction_factor
+
+    data, truth = _dataset(sigma_q=1e-5)
+    tau = truth[2] * np.array([0.3, 0.1]) + np.sin(truth[0])  # a smooth torque of the motion
+    data = Dataset(time=data.time, q=data.q, tau=tau, joint_names=data.joint_names, actuated=data.actuated)
+    full = derive_states(data, "butterworth", cutoff_hz=20.0)
+    band = excitation_bandwidth_hz(data.q, FS)
+    k = reduction_factor(data.n_samples, FS, max_rows=data.n_samples // 50, band_hz=2 * band)
+    assert 1 < k <= FS / (2.5 * 2 * band)
+    small = reduce_record(data, "butterworth", k, cutoff_hz=20.0)
+    rows = np.flatnonzero(full.valid)
+    kept = np.arange(rows[0], rows[-1] + 1, k)
+    np.testing.assert_array_equal(small.time, data.time[kept])
+    inner = np.arange(len(kept) // 10, len(kept) - len(kept) // 10)  # away from the anti-alias filter's edges
+    assert _rel_rms(small.q, full.q[kept], inner) < 1e-4
+    assert _rel_rms(small.tau, tau[kept], inner) < 1e-4
+    for mine, theirs, exact in ((small.dq, full.dq, truth[1]), (small.ddq, full.ddq, truth[2])):
+        assert mine is not None  # as close to the truth as the full-rate states (closer: less noise)
+        assert _rel_rms(mine, exact[kept], inner) <= 1.05 * _rel_rms(theirs[kept], exact[kept], inner)
+    assert small.meta["reduced"]["factor"] == k and small.tau_lead_s == 0.0
+    given = derive_states(small, "given")
+    np.testing.assert_array_equal(given.dq, small.dq)
+    assert given.valid.all()
+
+
+def test_reduction_never_drops_below_the_band_and_given_needs_states() -> None:
+    from dynamics.errors import DataError
+    from identify.derivatives import reduction_factor
+
+    assert reduction_factor(10_000, 500.0, max_rows=20_000, band_hz=5.0) == 1
+    assert reduction_factor(3_000_000, 500.0, max_rows=60_000, band_hz=5.0) == 40  # 500 / (2.5 * 5)
+    assert reduction_factor(3_000_000, 500.0, max_rows=60_000, band_hz=1.0) == 50
+    data, _ = _dataset()
+    with pytest.raises(DataError, match="derivatives='given' needs dq and ddq"):
+        derive_states(data, "given")

@@ -166,3 +166,21 @@ def test_a_data_configs_paths_are_relative_to_that_config_not_the_working_direct
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "out" / "diagnosis.json").is_file()
+
+
+def test_a_long_log_is_thinned_to_max_rows_and_diagnosed_the_same(csv_files: list[Path], tmp_path: Path) -> None:
+    """Past `diagnose.max_rows` the states are derived at the full rate, then every k-th row is kept: the
+    hidden friction is still named, with its value, and diagnosis.json says what was thinned."""
+    full = cli.run(_config(csv_files, tmp_path / "full", "diagnose.recording=false"))
+    thinned = cli.run(_config(csv_files, tmp_path / "thin", "diagnose.max_rows=1000", "diagnose.recording=false"))
+    reduced = thinned["reduced"]
+    assert set(reduced) == {str(p) for p in csv_files}
+    total = sum(r["rows"] for r in reduced.values())
+    assert total > 1000 and "reduced" not in full
+    for r in reduced.values():
+        assert r["factor"] > 1 and r["kept_rate_hz"] == pytest.approx(r["sample_rate_hz"] / r["factor"])
+    assert sum(r["kept"] for r in reduced.values()) <= 1000 * 1.05
+    assert thinned["findings"][0]["effect"] == "viscous_friction"
+    v_full, v_thin = full["findings"][0], thinned["findings"][0]
+    assert abs(v_thin["value"] - v_full["value"]) < 3 * max(v_thin["std"], v_full["std"])
+    assert thinned["verdict"] == full["verdict"]

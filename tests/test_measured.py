@@ -420,3 +420,33 @@ def test_dfki_logs_read_through_the_data_config(shared_data: Path, plant: Plant,
     assert [Path(d.source).stem for d in split.validation] == ["trajectory_01"]
     assert sorted(Path(d.source).stem for d in split.train) == [f"trajectory_{k}" for k in ("00", "02", "05", "12")]
     OmegaConf.load(CONF_DATA / "csv.yaml")  # the format's config parses too
+
+
+@pytest.mark.parametrize("block_rows", [1, 7, 999, 1000, 5000])
+def test_reading_block_by_block_gives_the_whole_file(
+    tmp_path: Path, plant: Plant, block_rows: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The body is read a block of rows at a time into the dataset's arrays: any block size, the last line
+    with or without its newline, blank lines and mapped (scaled) columns give what a one-shot read gives."""
+    cols = table()
+    cols["tau_cmd_shoulder"], cols["tau_cmd_elbow"] = 0.5 * cols["tau_shoulder"], 0.5 * cols["tau_elbow"]
+    cols["time"] = 1000.0 * cols["time"]  # logged in ms, mapped below
+    path = write(tmp_path / "log.csv", cols)
+    path.write_text(path.read_text().rstrip("\n") + ("\n\n" if block_rows % 2 else ""))
+    monkeypatch.setattr("envs.measured._BLOCK_ROWS", block_rows)
+    mapping = {"time": {"column": "time", "scale": 0.001}, "tau_elbow": {"column": "tau_elbow", "offset": 1.0}}
+    data = read_measured(path, plant, columns=mapping, min_samples=10)
+    np.testing.assert_array_equal(data.time, 0.001 * cols["time"])
+    np.testing.assert_array_equal(data.q, np.column_stack([cols["q_shoulder"], cols["q_elbow"]]))
+    assert data.dq is not None and data.tau_cmd is not None
+    np.testing.assert_array_equal(data.dq[:, 1], cols["dq_elbow"])
+    np.testing.assert_array_equal(data.tau[:, 1], cols["tau_elbow"] + 1.0)
+    np.testing.assert_array_equal(data.tau_cmd[:, 0], cols["tau_cmd_shoulder"])
+    assert data.meta["rows_read"] == len(cols["time"])
+
+
+def test_a_bad_cell_in_a_later_block_is_located(tmp_path: Path, plant: Plant, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("envs.measured._BLOCK_ROWS", 100)
+    path = write(tmp_path / "bad.csv", table(), cell=("q_elbow", 750, "oops"))
+    with pytest.raises(DataError, match=r"column 'q_elbow', row 750 \(line 752\): 'oops' is not a number"):
+        read_measured(path, plant)

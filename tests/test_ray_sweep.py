@@ -66,5 +66,5 @@ def test_a_job_killed_under_ray_is_reported_failed(tmp_path: Path) -> None:
     assert rows["0_pendulum"]["status"] == "ok"
     assert rows["1_pendulum"]["status"] == "failed"
     assert rows["1_pendulum"]["error"]
-    assert main([str(sweep)]) == 0
+    assert main([str(sweep)]) == 1  # the report is written, and its status says a job failed
     assert "2 jobs, 1 ok, 1 failed" in (sweep / "report.md").read_text()

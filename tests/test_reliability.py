@@ -10,10 +10,12 @@ import contextlib
 import errno
 import json
 import os
+import shutil
 import signal
 import stat
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +25,7 @@ import pytest
 
 from dynamics.errors import DataError
 from dynamics.plant import load_plant
-from envs.dataset import atomic_write
+from envs.dataset import atomic_write, scratch_folder, write_csv
 from envs.measured import read_measured
 from harness import report
 from harness.record import save_recording
@@ -335,7 +337,7 @@ def test_report_survives_corrupt_job_files_and_names_them(finished_run: Path, tm
         job = tmp_path / f"{i + 1}_bad"
         job.mkdir()
         (job / "results.json").write_bytes(content)
-    assert report.main([str(tmp_path)]) == 0
+    assert report.main([str(tmp_path)]) == 1  # written, and exit 1: jobs failed
     rows = {r["job"]: r for r in report.report_rows(report.collect(tmp_path))}
     assert rows["0_ok"]["status"] == "ok"
     for i in range(1, 5):
@@ -355,6 +357,18 @@ def test_an_unknown_key_or_malformed_value_is_one_config_error() -> None:
     with pytest.raises(ConfigError, match=r"no viable alternative at input '\[1,'$"):
         check_command_line(["system.limits.velocity=[1,"], CONF, "config")
     check_command_line(["system=arm3", "hydra.run.dir=/tmp/x", "-m", "seed=1,2"], CONF, "config")
+    # ... in a sweep too: its first job's overrides are composed before any job starts
+    for sweep in (["-m", "seed=1,2", "foo=1"], ["--multirun", "seed=range(0,3)", "estimator.options.bogus=2,3"]):
+        with pytest.raises(ConfigError, match=r"Could not override '(foo|estimator.options.bogus)'"):
+            check_command_line(sweep, CONF, "config")
+    check_command_line(["-m", "system=pendulum,two_link", "excitation.harmonics=range(2,4)"], CONF, "config")
+
+
+def test_an_unknown_key_in_a_sweep_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    proc = _cli("-m", f"hydra.sweep.dir={sweep}", "system=pendulum", "seed=0,1", "foo=1")
+    _one_line_error(proc, "Could not override 'foo'")
+    assert not sweep.exists()  # no job started
 
 
 def test_no_data_path_is_one_line(tmp_path: Path) -> None:
@@ -511,6 +525,67 @@ def test_temporary_files_left_by_a_killed_run_are_removed_by_the_next(tmp_path: 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
+def test_scratch_folders_of_killed_processes_are_removed_by_the_next(tmp_path: Path) -> None:
+    """SIGKILL leaves no chance to clean up: the diagnosis's scratch folder is named by its pid, and the next
+    diagnosis removes the folders of pids that are gone (a live process's folder stays)."""
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    tmp = Path(tempfile.gettempdir())
+    orphan, alive = tmp / f"sysid_diagnose_{dead.pid}_x1", tmp / f"sysid_diagnose_{os.getppid()}_x2"
+    for folder in (orphan, alive):
+        folder.mkdir(exist_ok=True)
+        (folder / "two_link_calibrated.xml").write_text("<mujoco/>")
+    try:
+        with scratch_folder("sysid_diagnose_") as mine:
+            assert mine.name.startswith(f"sysid_diagnose_{os.getpid()}_") and mine.is_dir()
+        assert not mine.exists() and not orphan.exists() and alive.is_dir()
+    finally:
+        shutil.rmtree(orphan, ignore_errors=True)
+        shutil.rmtree(alive, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def csv_pair(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Clean pendulum data: a training and a validation file."""
+    from test_diagnose import simulate
+
+    folder = tmp_path_factory.mktemp("pair")
+    _, train, validation = simulate("pendulum", [], 2, folder)
+    paths = [folder / "train.csv", folder / "validation.csv"]
+    write_csv(train, paths[0])
+    write_csv(validation, paths[1])
+    return paths
+
+
+def test_a_diagnosis_killed_with_sigkill_leaves_no_scratch_folder_after_the_next(
+    csv_pair: list[Path], tmp_path: Path
+) -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "harness.diagnose",
+            "system=pendulum",
+            f"data.path=[{csv_pair[0]},{csv_pair[1]}]",
+            f"hydra.run.dir={tmp_path / 'killed'}",
+        ],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    tmp = Path(tempfile.gettempdir())
+    deadline = time.monotonic() + 120
+    while not list(tmp.glob(f"sysid_diagnose_{proc.pid}_*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    seen = bool(list(tmp.glob(f"sysid_diagnose_{proc.pid}_*")))
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert seen, "the diagnosis ended before its scratch folder was seen"
+    with scratch_folder("sysid_diagnose_"):
+        pass
+    assert not list(tmp.glob(f"sysid_diagnose_{proc.pid}_*"))
+
+
 # 11. large files: memory scales with the file ----------------------------------------------------------------------
 
 
@@ -540,3 +615,39 @@ def test_reading_memory_stays_within_twice_the_file(tmp_path: Path) -> None:
     rows, grown = (int(v) for v in proc.stdout.split())
     assert rows == n
     assert 0.2 * path.stat().st_size < grown <= 2 * path.stat().st_size, (grown, path.stat().st_size)
+
+
+@pytest.mark.slow
+def test_a_whole_diagnosis_of_a_3m_row_file_stays_within_twice_the_file(tmp_path: Path) -> None:
+    """sysid-diagnose on 3 M rows: read block by block, states at the full rate, then thinned to
+    `diagnose.max_rows`; the peak memory above the loaded libraries stays within twice the file."""
+    if not Path("/proc/self/clear_refs").exists():
+        pytest.skip("the peak memory of one stage is read from Linux's /proc/self (clear_refs, VmHWM)")
+    from bench.large_file import write_file
+
+    path = tmp_path / "large.csv"
+    write_file(path, 3_000_000)
+    script = (
+        "import sys\n"
+        "import harness.diagnose, identify.diagnose, dynamics.plant, scipy.signal, mujoco.rollout\n"
+        "dynamics.plant.load_plant('two_link')\n"
+        "def kb(field):\n"
+        "    return next(int(ln.split()[1]) for ln in open('/proc/self/status') if ln.startswith(field + ':'))\n"
+        "open('/proc/self/clear_refs', 'w').write('5')\n"
+        "before = kb('VmRSS')\n"
+        f"sys.argv = ['sysid-diagnose', 'system=two_link', 'data.path={path}', 'hydra.run.dir={tmp_path / 'out'}',\n"
+        "            'diagnose.recording=false']\n"
+        "try:\n"
+        "    harness.diagnose.main()\n"
+        "except SystemExit as e:\n"
+        "    assert not e.code, e.code\n"
+        "print('PEAK', (kb('VmHWM') - before) * 1024)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    grown = int(proc.stdout.split("PEAK")[-1])
+    size = path.stat().st_size
+    assert grown <= 2 * size, (grown, size)
+    payload = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert payload["reduced"][str(path)]["factor"] > 1
+    assert "every" in proc.stderr and "states at the full rate" in proc.stderr  # progress names the thinning

@@ -50,6 +50,8 @@ def test_a_failed_job_is_reported_and_the_others_finish(tmp_path: Path) -> None:
     assert rows[60.0]["status"] == "ok"
     assert rows[1e-6]["status"] == "failed"
     assert "binding constraint ddq" in rows[1e-6]["error"]
+    assert main([str(sweep)]) == 1  # sysid-report too says that a job failed
+    assert "2 jobs, 1 ok, 1 failed" in (sweep / "report.md").read_text()
 
 
 def test_report_of_a_missing_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

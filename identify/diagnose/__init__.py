@@ -4,6 +4,7 @@ model and the gain on held-out data (DESIGN.md question 4)."""
 from __future__ import annotations
 
 from dynamics.torque import joint_torque
+from identify.diagnose.anomalies import Anomaly, find_anomalies
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
 from identify.diagnose.calibrate import Extension, calibrated_xml, frictionloss_mapping, predict_measured_torque
 from identify.diagnose.candidates import CANDIDATE_EFFECTS, Candidate, Signals, candidates
@@ -15,6 +16,7 @@ from identify.diagnose.simulation_error import SimulationError, simulation_error
 __all__ = [
     "CANDIDATE_EFFECTS",
     "DEFAULT_EFFECTS",
+    "Anomaly",
     "Candidate",
     "Diagnosis",
     "Extension",
@@ -29,6 +31,7 @@ __all__ = [
     "calibrated_xml",
     "candidates",
     "diagnose",
+    "find_anomalies",
     "frictionloss_mapping",
     "joint_torque",
     "load_author_model",

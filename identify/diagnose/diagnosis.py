@@ -11,10 +11,8 @@ residual = measured torque - nominal MJCF torque (inverse dynamics along the mea
 from __future__ import annotations
 
 import dataclasses
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,9 +21,9 @@ from dynamics.base import base_parameters
 from dynamics.plant import Plant, plant_from_xml
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
-from envs.dataset import Dataset
+from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states
-from identify.diagnose.anomalies import find_anomalies
+from identify.diagnose.anomalies import Anomaly, find_anomalies
 from identify.diagnose.calibrate import (
     Extension,
     applied_from_measured,
@@ -309,6 +307,7 @@ def diagnose(
     references: dict[str, ReferenceModel] | None = None,
     band_hz: float | None = None,
     record_offsets: bool = False,
+    anomalies: Sequence[Anomaly] | None = None,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -327,6 +326,8 @@ def diagnose(
         record_offsets: fit a torque offset per training record and actuated joint as a nuisance (sensors
             re-zeroed at every power-up drift between recordings); the calibrated model uses their mean.
             Needs two or more training records; the torque_offset candidate is then never named.
+        anomalies: the records' anomalies when found before (on the full-rate records of reduced ones);
+            None finds them on `train` and `validation`.
 
     Returns:
         The diagnosis (see `Diagnosis`).
@@ -334,7 +335,7 @@ def diagnose(
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     selection = selection or SelectionOptions()
-    anomalies = find_anomalies([*train, *validation])
+    anomalies = list(anomalies) if anomalies is not None else find_anomalies([*train, *validation])
     options = dict(derivative_options or {})
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
@@ -366,15 +367,15 @@ def diagnose(
     ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m else None)
     refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx)
 
-    with tempfile.TemporaryDirectory(prefix="sysid_diagnose_") as tmp:
+    with scratch_folder("sysid_diagnose_") as tmp:
         xml = calibrated_xml(
             plant,
             ext,
             metric=metric,
             comment=", ".join(f"{f.effect} {f.target}".strip() for f in findings) or "no effect found",
         )
-        calibrated = plant_from_xml(xml, f"{plant.name}_calibrated", Path(tmp))
-        refit = plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", Path(tmp))
+        calibrated = plant_from_xml(xml, f"{plant.name}_calibrated", tmp)
+        refit = plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", tmp)
         models: dict[str, dict[str, dict[str, float]]] = {}
         preds: dict[str, np.ndarray] = {}
 

@@ -39,6 +39,9 @@ class SimulationError:
     window_s: float
 
 
+_BATCH = 1000  # windows simulated in one batch
+
+
 def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
     """A batched stepper over `mujoco.rollout` for an MJCF whose actuators drive joints directly, and its dt."""
     act_joint = np.array([int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) for a in range(model.nu)], dtype=int)
@@ -108,19 +111,20 @@ def simulation_error(
         k = int(np.searchsorted(time, time[k] + n_step * dt, side="left"))
     if not starts:
         raise ValueError(f"the record ({time[-1] - time[0]:.3f} s) is shorter than one {window_s} s window")
-    idx = np.array(starts)
-    t_phys = time[idx][:, None] + dt * np.arange(n_step)[None, :]
-    sample = np.clip(np.searchsorted(time, t_phys + 1e-12, side="right") - 1, 0, len(time) - 1)
-    q_sim = step(q[idx], dq[idx], tau_applied[sample], dt)  # (B, n_step, nv): after steps 1..n_step
-    t_after = t_phys + dt
     times, sims, refs = [], [], []
-    for b, k0 in enumerate(idx):
-        k1 = int(np.searchsorted(time, t_after[b, -1], side="right"))
-        ks = np.arange(k0 + 1, k1)
-        sim = np.column_stack([np.interp(time[ks], t_after[b], q_sim[b, :, j]) for j in range(q.shape[1])])
-        times.append(time[ks])
-        sims.append(sim)
-        refs.append(q[ks])
+    for first in range(0, len(starts), _BATCH):  # a batch of windows at a time: memory stays that of a batch
+        idx = np.array(starts[first : first + _BATCH])
+        t_phys = time[idx][:, None] + dt * np.arange(n_step)[None, :]
+        sample = np.clip(np.searchsorted(time, t_phys + 1e-12, side="right") - 1, 0, len(time) - 1)
+        q_sim = step(q[idx], dq[idx], tau_applied[sample], dt)  # (B, n_step, nv): after steps 1..n_step
+        t_after = t_phys + dt
+        for b, k0 in enumerate(idx):
+            k1 = int(np.searchsorted(time, t_after[b, -1], side="right"))
+            ks = np.arange(k0 + 1, k1)
+            sim = np.column_stack([np.interp(time[ks], t_after[b], q_sim[b, :, j]) for j in range(q.shape[1])])
+            times.append(time[ks])
+            sims.append(sim)
+            refs.append(q[ks])
     t_all, s_all, r_all = np.concatenate(times), np.concatenate(sims), np.concatenate(refs)
     rms = np.sqrt(np.mean((s_all - r_all) ** 2, axis=0))
     return SimulationError(rms=rms, time=t_all, q_simulated=s_all, window_s=float(window_s))
