@@ -220,6 +220,71 @@ def _sigkill_sweep(d: Path, base: Path) -> tuple[bool, str]:
     return ok, f"status {proc.returncode}, failure recorded {recorded}, other job finished {other}: {_last(err)}"
 
 
+def _text(edit: Callable[[str], str]) -> Callable[[Path, Path], None]:
+    """Write the finished run's data.csv through a text edit."""
+
+    def prepare(d: Path, base: Path) -> None:
+        (d / "data.csv").write_text(edit((base / "data.csv").read_text()))
+
+    return prepare
+
+
+def _stuck(header: list[str], table: np.ndarray) -> tuple[list[str], np.ndarray]:
+    table = table.copy()
+    table[:, header.index("tau_swing")] = 0.0
+    return header, table
+
+
+def _model(xml: str) -> Callable[[Path, Path], None]:
+    def prepare(d: Path, base: Path) -> None:
+        (d / "robot.xml").write_text(xml)
+
+    return prepare
+
+
+def _report_after_failed_sweep(d: Path, base: Path) -> tuple[bool, str]:
+    sweep = d / "sweep"
+    _py(RUN, "-m", *FAST, f"hydra.sweep.dir={sweep}", "system.limits.acceleration=1e-6,60")
+    proc = _py(REPORT, str(sweep))
+    ok = proc.returncode == 1 and "failed" in _last(proc.stderr) and (sweep / "report.md").is_file()
+    return ok, f"status {proc.returncode}, report written {(sweep / 'report.md').is_file()}: {_last(proc.stderr)}"
+
+
+def _large_file(d: Path, base: Path) -> tuple[bool, str]:
+    """sysid-diagnose on a 3 M-row file: the peak memory above the loaded libraries within 2x the file, and
+    progress lines on stderr."""
+    from bench.large_file import write_file
+
+    path = d / "large.csv"
+    write_file(path, 3_000_000)
+    script = (
+        "import sys, time\n"
+        "import harness.diagnose, identify.diagnose, dynamics.plant, scipy.signal, mujoco.rollout\n"
+        "dynamics.plant.load_plant('two_link')\n"
+        "def kb(f):\n"
+        "    return next(int(ln.split()[1]) for ln in open('/proc/self/status') if ln.startswith(f + ':'))\n"
+        "open('/proc/self/clear_refs', 'w').write('5')\n"
+        "before, t0 = kb('VmRSS'), time.perf_counter()\n"
+        f"sys.argv = ['sysid-diagnose', 'system=two_link', 'data.path={path}', 'hydra.run.dir={d / 'out'}']\n"
+        "try:\n"
+        "    harness.diagnose.main()\n"
+        "except SystemExit as e:\n"
+        "    code = e.code\n"
+        "print('PEAK', (kb('VmHWM') - before) * 1024, kb('VmHWM') * 1024, time.perf_counter() - t0)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=900)
+    size = path.stat().st_size
+    if "PEAK" not in proc.stdout:
+        return False, f"status {proc.returncode}: {_last(proc.stderr)}"
+    grown, total, seconds = (float(v) for v in proc.stdout.split("PEAK")[-1].split())
+    progress = "states at the full rate" in proc.stderr
+    ok = proc.returncode == 0 and grown <= 2 * size and progress
+    return ok, (
+        f"{size / 2**20:.0f} MB file: peak {grown / 2**20:.0f} MB above the loaded libraries ({grown / size:.2f}x), "
+        f"{total / 2**20:.0f} MB in all, {seconds:.0f} s, progress lines {progress}"
+    )
+
+
 def _last(text: str) -> str:
     lines = text.strip().splitlines()
     return lines[-1] if lines else ""
@@ -401,11 +466,103 @@ def _cases() -> list[Case]:
             "report with corrupt job files",
             REPORT,
             ("{dir}/sweep",),
-            status=0,
+            status=1,  # written, and the status says jobs failed
             prepare=_corrupt_sweep,
             check=_report_names("1_job/results.json"),
         )
     )
+
+    c.append(Case("report after a sweep with a failed job", REPORT, (), special=_report_after_failed_sweep))
+
+    # more config values and models (sysid-run)
+    c.append(
+        Case(
+            "unknown key in a sweep",
+            RUN,
+            ("-m", *FAST, "hydra.sweep.dir={dir}/sweep", "seed=0,1", "foo=1"),
+            needles=("foo",),
+            check=lambda d, p: "a job started" if (d / "sweep").exists() else None,
+        )
+    )
+    c.append(
+        Case(
+            "sweep where every job fails",
+            RUN,
+            ("-m", *FAST, "hydra.sweep.dir={dir}/sweep", "system.limits.acceleration=1e-6,2e-6"),
+            status=1,
+            needles=("binding constraint",),
+        )
+    )
+    run_case("periods=1e9", "system.periods=1e9", needles=("system.periods", "samples"))
+    run_case("sample_rate_hz=1e9", "system.sensor.sample_rate_hz=1e9", needles=("samples",))
+    run_case("validation.periods=abc", "validation.periods=abc", needles=("validation.periods",))
+    run_case("harmonics=null", "excitation.harmonics=null", needles=("excitation.harmonics",))
+    run_case("seed=1e100", "seed=1e100", needles=("seed",))
+    run_case("velocity 2 values, 1 joint", "system.limits.velocity=[1,2]", needles=("system.limits.velocity",))
+    run_case("sigma_tau=-1", "system.sensor.sigma_tau=-1", needles=("system.sensor.sigma_tau",))
+    run_case("cutoff_hz=abc", "identify.cutoff_hz=abc", needles=("identify.cutoff_hz",))
+    run_case("wls iterations=-1", "estimator=wls", "estimator.options.iterations=-1", needles=("iterations",))
+    run_case("a CSV as the model", "system.mjcf={base}/data.csv", needles=("data.csv",))
+    run_case("a folder as the model", "system.mjcf={dir}", needles=("system",))
+    run_case(
+        "broken XML model",
+        "system.mjcf={dir}/robot.xml",
+        needles=("robot.xml", "cannot load"),
+        prepare=_model("<mujoco><worldbody><body>"),
+    )
+    run_case(
+        "model without joints",
+        "system.mjcf={dir}/robot.xml",
+        needles=("no joints",),
+        prepare=_model('<mujoco><worldbody><body><geom size=".1"/></body></worldbody></mujoco>'),
+    )
+    run_case(
+        "model without actuators",
+        "system.mjcf={dir}/robot.xml",
+        needles=("driven", "motor"),
+        prepare=_model(
+            '<mujoco><worldbody><body><joint name="j" axis="1 0 0"/><geom size=".1" pos="0 0 .2"/></body>'
+            "</worldbody></mujoco>"
+        ),
+    )
+
+    # more data files (sysid-diagnose)
+    for name, edit in (
+        ("semicolon-separated", lambda t: t.replace(",", ";")),
+        ("tab-separated", lambda t: t.replace(",", "\t")),
+        ("CRLF line ends", lambda t: t.replace("\n", "\r\n")),
+        ("UTF-8 byte-order mark", lambda t: "\ufeff" + t),
+        ("spaces after commas in the header", lambda t: t.replace(",", ", ", t.index("\n"))),
+    ):
+        c.append(Case(name, DIAGNOSE, data, status=0, prepare=_text(edit), keep=("data.csv",)))
+    data_case("decimal commas", _text(lambda t: t.translate(str.maketrans(",.", ";,"))), "decimal comma")
+    data_case("a comment line above the header", _text(lambda t: "# exported 2026-11-30\n" + t), "comment")
+    data_case("torque stuck at zero", _mutated(_stuck), "stuck at zero")
+    data_case(
+        "joint that never moves",
+        _mutated(lambda h, t: (h, np.column_stack([t[:, :1], 0 * t[:, 1:2] + 0.1, t[:, 2:]]))),
+        "excite",
+    )
+    data_case("duplicate column name", _text(lambda t: t.replace("tau_cmd_swing", "tau_swing", 1)), "2 times")
+    data_case("mapping to a missing column", copy, "'foo'", args=("+data.columns.tau_swing=foo",))
+    data_case("unknown name in the mapping", copy, "bogus", args=("+data.columns.bogus=time",))
+    data_case("pattern that matches no file", None, "matches no file", path="{dir}/nope_*.csv")
+    c.append(
+        Case(
+            "a pattern for two files",
+            DIAGNOSE,
+            ("system=pendulum", "data.path={dir}/run_*.csv", *data[2:]),
+            status=0,
+            prepare=lambda d, b: [shutil.copy(b / "data.csv", d / f"run_{i}.csv") for i in (1, 2)],
+        )
+    )
+    data_case("a folder in the list", copy, "folder", path="[{dir}/data.csv,{dir}]")
+    data_case("max_rows=10", copy, "diagnose.max_rows", args=("diagnose.max_rows=10",))
+    data_case("diagnose cutoff above Nyquist", copy, "cutoff_hz", args=("diagnose.cutoff_hz=1000",))
+    data_case("band_hz=-1", copy, "diagnose.band_hz", args=("diagnose.band_hz=-1",))
+    data_case("window_s=0", copy, "diagnose.window_s", args=("diagnose.window_s=0",))
+    data_case("repair=maybe", copy, "data.repair", args=("data.repair=maybe",))
+    c.append(Case("3 M-row file", DIAGNOSE, (), special=_large_file))
 
     # signals
     c.append(Case("SIGTERM during a run", RUN, (), special=_sigterm))

@@ -164,6 +164,8 @@ def _name(m: mujoco.MjModel, kind: mujoco.mjtObj, i: int) -> str:
 
 def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     """Refuse what the rigid-body regressor does not model: other joint types and joint couplings."""
+    if m.njnt == 0:
+        raise ModelError(f"{path}: the model has no joints: nothing moves, so there is nothing to identify")
     simple = {int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)}
     bad = [
         f"{_name(m, mujoco.mjtObj.mjOBJ_JOINT, j)} ({mujoco.mjtJoint(m.jnt_type[j]).name.removeprefix('mjJNT_')})"

@@ -121,9 +121,9 @@ def read_measured(
     """
     path = Path(path)
     src = str(path)
-    header = _read_header(path)
+    header, delimiter = _read_header(path)
     sources, ignored = _resolve_columns(plant, header, columns, src)
-    arrays, values, rows_read = _read_body(path, header, sources, plant)
+    arrays, values, rows_read = _read_body(path, header, delimiter, sources, plant)
     labels = {name: f"column '{c.name}'" + (f" ({name})" if c.name != name else "") for name, c in sources.items()}
     _check_finite(values, labels, src)
     t = values["time"]
@@ -275,16 +275,30 @@ def _not_utf8(path: Path, data: bytes, at: int) -> DataError:
     )
 
 
-def _read_header(path: Path) -> list[str]:
+def _read_header(path: Path) -> tuple[list[str], str]:
+    """The column names of line 1, and the delimiter they are separated by (a comma; a semicolon or a tab as
+    spreadsheets export them are read too)."""
     _check_readable(path)
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
-            header = [h.strip() for h in next(csv.reader(f), [])]
-    except (UnicodeDecodeError, csv.Error) as err:
+            first = f.readline()
+    except UnicodeDecodeError as err:
+        raise DataError(f"{path}: the header row (line 1) cannot be read as text: {err}") from None
+    if not first.strip():
+        raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
+    if first.lstrip().startswith("#"):
+        raise DataError(
+            f"{path}: line 1 is a comment ({first.strip()[:40]!r}); the header row of column names must be line 1: "
+            "remove the comment lines above it"
+        )
+    delimiter = max((",", ";", "\t"), key=first.count)
+    try:
+        header = [h.strip() for h in next(csv.reader([first], delimiter=delimiter), [])]
+    except csv.Error as err:
         raise DataError(f"{path}: the header row (line 1) cannot be read as CSV text: {err}") from None
     if not header or header == [""]:
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
-    return header
+    return header, delimiter
 
 
 def _line_count(path: Path) -> int:
@@ -298,7 +312,7 @@ def _line_count(path: Path) -> int:
 
 
 def _read_body(
-    path: Path, header: list[str], sources: dict[str, _Column], plant: Plant
+    path: Path, header: list[str], delimiter: str, sources: dict[str, _Column], plant: Plant
 ) -> tuple[dict[str, np.ndarray | None], dict[str, np.ndarray], int]:
     """The used columns, read block by block (numpy's C reader) straight into the (N, nv) arrays of the dataset:
     memory is the dataset itself plus one block, whatever the file's length.
@@ -340,13 +354,13 @@ def _read_body(
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", UserWarning)  # the empty read after the last block
-                    table = np.loadtxt(f, delimiter=",", ndmin=2, max_rows=_BLOCK_ROWS, comments=None)
+                    table = np.loadtxt(f, delimiter=delimiter, ndmin=2, max_rows=_BLOCK_ROWS, comments=None)
             except UnicodeDecodeError as err:
                 raise DataError(
                     f"{path}: not UTF-8 text ({err.reason} at byte {err.start} of a block): save it as UTF-8"
                 ) from None
             except ValueError as err:
-                _locate_bad_cell(path, header)
+                _locate_bad_cell(path, header, delimiter)
                 raise DataError(f"{path}: cannot read the rows as numbers: {err}") from err
             if table.shape[0] == 0:
                 break
@@ -366,9 +380,9 @@ def _read_body(
     return arrays, values, n
 
 
-def _locate_bad_cell(path: Path, header: list[str]) -> None:
+def _locate_bad_cell(path: Path, header: list[str], delimiter: str = ",") -> None:
     with path.open(newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f)
+        reader = csv.reader(f, delimiter=delimiter)
         next(reader)
         for row, cells in enumerate(c for c in reader if c):
             line = reader.line_num
@@ -380,8 +394,14 @@ def _locate_bad_cell(path: Path, header: list[str]) -> None:
                 try:
                     float(cell)
                 except ValueError:
+                    comma = (
+                        "," in cell
+                        and delimiter != ","
+                        and cell.replace(",", ".", 1).replace(".", "", 1).strip("+-").isdigit()
+                    )
+                    hint = " (a decimal comma? write numbers with a decimal point)" if comma else ""
                     raise DataError(
-                        f"{path}: column '{name}', row {row} (line {line}): {cell!r} is not a number"
+                        f"{path}: column '{name}', row {row} (line {line}): {cell!r} is not a number{hint}"
                     ) from None
 
 

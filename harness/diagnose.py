@@ -8,6 +8,7 @@ finished, and a failure while writing removes what was written: a run directory 
 
 from __future__ import annotations
 
+import glob
 import re
 import sys
 import time
@@ -22,6 +23,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import base_parameters
+from dynamics.errors import DataError
 from dynamics.plant import Plant, load_plant
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, atomic_write
@@ -104,10 +106,20 @@ def _data_config_folder(cfg: DictConfig) -> Path | None:
 
 def data_paths(cfg: DictConfig) -> list[Path]:
     """The data files; a data config's relative paths are relative to that config's own folder, a path given on
-    the command line to the current directory."""
+    the command line to the current directory. A pattern (`logs/*.csv`) stands for its files in name order."""
     folder = _data_config_folder(cfg)
-    out = [Path(p) for p in _as_list(cfg.data.path)]
-    return [p if p.is_absolute() or folder is None else (folder / p).resolve() for p in out]
+    out: list[Path] = []
+    for item in _as_list(cfg.data.path):
+        p = Path(item).expanduser()
+        p = p if p.is_absolute() or folder is None else (folder / p).resolve()
+        if glob.has_magic(str(p)):  # a pattern (logs/*.csv): its files, in name order
+            found = sorted(Path(f) for f in glob.glob(str(p)) if Path(f).is_file())
+            if not found:
+                raise DataError(f"{p}: the pattern matches no file")
+            out += found
+        else:
+            out.append(p)
+    return out
 
 
 def _band_hz(cfg: DictConfig) -> float | None:
@@ -156,6 +168,9 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
     anomalies = find_anomalies(datasets)  # at the full rate: thinning would blur a stuck or clipped torque
+    datasets, excluded = _without_stuck_torques(datasets, anomalies)
+    if excluded:
+        stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")
     reduced = _reduce(datasets, derivatives, derivative_options, cfg, stage)
     if reduced is not None:
         datasets, derivatives, derivative_options = reduced
@@ -197,6 +212,8 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     payload["seed"] = int(cfg.seed)
     payload["split"] = split.describe()
     payload["repairs"] = repairs
+    if excluded:
+        payload["excluded"] = excluded
     if reduced is not None:
         payload["reduced"] = {d.source: d.meta["reduced"] for d in datasets}
     payload["config"] = OmegaConf.to_container(cfg, resolve=True)
@@ -208,6 +225,29 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     print(_summary(payload))
     print(f"outputs in {out}")
     return to_jsonable(payload)
+
+
+def _without_stuck_torques(datasets: list[Dataset], anomalies: list[Any]) -> tuple[list[Dataset], list[str]]:
+    """The files whose torque is stuck at zero on some joint are left out of the fit (a zero reading there is
+    no measurement; fitted, it would be explained as a huge effect); an error when no file is left.
+
+    Returns:
+        The files kept, and what was left out and why (one line per file).
+    """
+    stuck: dict[str, list[str]] = {}
+    for a in anomalies:
+        if a.kind == "torque_stuck_at_zero":
+            stuck.setdefault(a.source, []).append(f"{a.joint} ({a.detail['zero_fraction']:.0%} of rows exactly 0)")
+    if not stuck:
+        return datasets, []
+    lines = [f"{Path(src).name}: torque of {', '.join(j)}" for src, j in stuck.items()]
+    kept = [d for d in datasets if d.source not in stuck]
+    if not kept:
+        raise DataError(
+            f"{'; '.join(lines)}: the torque is stuck at zero (the sensor is off, or the column is not logged), "
+            "so there is nothing to fit; check the torque column(s) of these file(s)"
+        )
+    return kept, lines
 
 
 def _reduce(

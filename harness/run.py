@@ -38,7 +38,7 @@ from harness.setup import (
     system_for_overrides,
     with_model_defaults,
 )
-from harness.validate import ConfigError, check_command_line, validate_run_config
+from harness.validate import ConfigError, check_command_line, check_driven, validate_run_config
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
 from identify.derivatives import derive_states
 from identify.derived import DERIVED
@@ -101,6 +101,7 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
         RunFolderError: the output folder cannot be used.
     """
     loaded = load_plant(cfg.system.mjcf)
+    check_driven(loaded)
     cfg = with_model_defaults(cfg, loaded)
     validate_run_config(cfg, loaded)
     out = Path(output_dir) if output_dir is not None else _hydra_output_dir()

@@ -23,6 +23,7 @@ __all__ = [
     "MAX_HARMONICS",
     "ConfigError",
     "check_command_line",
+    "check_driven",
     "check_group_overrides",
     "check_system",
     "validate_diagnose_config",
@@ -155,6 +156,9 @@ def _check_estimator(cfg: DictConfig) -> None:
                 raise ConfigError(f"estimator.options.{key} must be an integer, got {value!r}")
 
 
+MAX_RECORD_ROWS = 2_000_000  # samples in one simulated record (a 7-DoF regressor of 2e6 rows is ~8 GB)
+
+
 def _check_harmonics(cfg: DictConfig) -> None:
     """1 <= harmonics <= MAX_HARMONICS, and the top harmonic slow enough for the sampling: the derivative filter
     cuts at 10 x the top harmonic, which must stay below the Nyquist frequency."""
@@ -171,6 +175,20 @@ def _check_harmonics(cfg: DictConfig) -> None:
             f"Nyquist frequency {fs / 2:g} Hz of system.sensor.sample_rate_hz"
         )
         raise ConfigError(f"excitation.harmonics must be between 1 and {limit}, got {h}: {why}")
+
+
+def check_driven(plant: Plant) -> None:
+    """Refuse, for a simulated run, a model none of whose joints an actuator drives: nothing could excite it.
+
+    Raises:
+        ConfigError: naming the model and how to add actuators.
+    """
+    if not any(bool(a) for a in plant.actuated):
+        raise ConfigError(
+            f"{plant.path}: no joint of {plant.name} is driven (the model has no <actuator> on its joints), so "
+            "nothing can excite it: add a motor per joint, e.g. <actuator><motor joint='j1' ctrlrange='-5 5'/>"
+            "</actuator>"
+        )
 
 
 def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
@@ -192,6 +210,14 @@ def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
     _number(cfg, "system.periods", low=0.0, low_open=True)
     _number(cfg, "validation.periods", low=0.0, low_open=True)
     fs = float(_value(cfg, "system.sensor.sample_rate_hz"))
+    for key in ("system.periods", "validation.periods"):  # the record's length, before anything is allocated
+        rows = float(_value(cfg, key)) / float(_value(cfg, "system.base_freq_hz")) * fs
+        if rows > MAX_RECORD_ROWS:
+            raise ConfigError(
+                f"{key}={_value(cfg, key)} at system.base_freq_hz={_value(cfg, 'system.base_freq_hz')} and "
+                f"system.sensor.sample_rate_hz={fs:g} makes a record of {rows:.3g} samples; at most "
+                f"{MAX_RECORD_ROWS:.0e} are simulated (memory): lower {key} or the sample rate"
+            )
     _number(cfg, "identify.cutoff_hz", low=0.0, low_open=True, high=fs / 2.0, optional=True)
     _number(cfg, "system.limits.range_margin", low=0.0, high=0.49)
     _number(cfg, "system.limits.torque_margin", low=0.0, low_open=True, high=1.0)

@@ -109,7 +109,7 @@ def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
     plant = load_plant("pendulum")
     t = np.arange(0.0, 4.0, 0.002)
     q = 1e-3 * np.sin(2 * np.pi * 0.5 * t)[:, None]
-    tau = np.zeros_like(q)
+    tau = 0.05 * q  # a reading (a torque stuck at exactly zero is refused before this check)
     still = Dataset(time=t, q=q, tau=tau, joint_names=plant.joint_names, actuated=plant.actuated)
     paths = [tmp_path / "a.csv", tmp_path / "b.csv"]
     for p in paths:
@@ -184,3 +184,29 @@ def test_a_long_log_is_thinned_to_max_rows_and_diagnosed_the_same(csv_files: lis
     v_full, v_thin = full["findings"][0], thinned["findings"][0]
     assert abs(v_thin["value"] - v_full["value"]) < 3 * max(v_thin["std"], v_full["std"])
     assert thinned["verdict"] == full["verdict"]
+
+
+def test_a_pattern_stands_for_its_files_and_one_that_matches_none_is_named(
+    csv_files: list[Path], tmp_path: Path
+) -> None:
+    cfg = compose_config(["system=pendulum", f"data.path={csv_files[0].parent}/*.csv"], config_name="diagnose")
+    assert cli.data_paths(cfg) == sorted(csv_files)
+    cfg = compose_config(["system=pendulum", f"data.path={tmp_path}/nope_*.csv"], config_name="diagnose")
+    with pytest.raises(DataError, match=r"nope_\*\.csv: the pattern matches no file"):
+        cli.data_paths(cfg)
+
+
+def test_a_file_whose_torque_is_stuck_at_zero_is_left_out_or_refused(csv_files: list[Path], tmp_path: Path) -> None:
+    """A zero reading is no measurement: such a file is left out of the fit (said in diagnosis.json), and
+    when it is the only one the diagnosis refuses it instead of explaining zeros by a huge effect."""
+    text = csv_files[0].read_text().splitlines()
+    names = text[0].split(",")
+    col = names.index("tau_swing")
+    rows = [",".join("0" if i == col else c for i, c in enumerate(line.split(","))) for line in text[1:]]
+    stuck = tmp_path / "stuck.csv"
+    stuck.write_text("\n".join([text[0], *rows]) + "\n")
+    with pytest.raises(DataError, match=r"stuck\.csv: torque of swing \(100% of rows exactly 0\).*nothing to fit"):
+        cli.run(_config([stuck], tmp_path / "alone", "diagnose.recording=false"))
+    payload = cli.run(_config([stuck, *csv_files], tmp_path / "with", "diagnose.recording=false"))
+    assert payload["excluded"] == ["stuck.csv: torque of swing (100% of rows exactly 0)"]
+    assert payload["findings"][0]["effect"] == "viscous_friction"

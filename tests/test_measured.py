@@ -161,6 +161,11 @@ def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant) -> None:
         ("", r"absent\.csv: the file is empty"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"no data rows after the header"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n1,2,3\n", r"row 1 \(line 3\) has 3 fields"),
+        ("# logged 2026-11-30\ntime,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"line 1 is a comment \('# logged"),
+        (
+            "time;q_shoulder;q_elbow;tau_shoulder;tau_elbow\n0;0,5;1;2;3\n",
+            r"column 'q_shoulder', row 0 \(line 2\): '0,5' is not a number \(a decimal comma\?",
+        ),
     ],
 )
 def test_malformed_files_are_refused(tmp_path: Path, plant: Plant, text: str | None, message: str) -> None:
@@ -450,3 +455,14 @@ def test_a_bad_cell_in_a_later_block_is_located(tmp_path: Path, plant: Plant, mo
     path = write(tmp_path / "bad.csv", table(), cell=("q_elbow", 750, "oops"))
     with pytest.raises(DataError, match=r"column 'q_elbow', row 750 \(line 752\): 'oops' is not a number"):
         read_measured(path, plant)
+
+
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_semicolon_and_tab_separated_files_read_like_commas(tmp_path: Path, plant: Plant, delimiter: str) -> None:
+    """Spreadsheets export ';' or tab separated text: the delimiter is taken from the header row."""
+    cols = table()
+    path = write(tmp_path / "log.csv", cols)
+    path.write_text(path.read_text().replace(",", delimiter))
+    data = read_measured(path, plant)
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])

@@ -205,3 +205,20 @@ def test_couplings_are_refused(tmp_path: Path, extra: str, message: str) -> None
     path.write_text(xml)
     with pytest.raises(ModelError, match=message):
         load_plant(path)
+
+
+def test_a_model_without_joints_is_refused_and_one_without_actuators_cannot_be_run(tmp_path: Path) -> None:
+    from harness.validate import ConfigError, check_driven
+
+    still = tmp_path / "still.xml"
+    still.write_text('<mujoco><worldbody><body><geom size=".1"/></body></worldbody></mujoco>')
+    with pytest.raises(ModelError, match=r"still\.xml: the model has no joints"):
+        load_plant(still)
+    loose = tmp_path / "loose.xml"
+    loose.write_text(
+        '<mujoco><worldbody><body><joint name="j" axis="1 0 0"/><geom size=".1" pos="0 0 .2"/></body>'
+        "</worldbody></mujoco>"
+    )
+    plant = load_plant(loose)  # a passive model is fine for measured data ...
+    with pytest.raises(ConfigError, match=r"loose.xml: no joint of loose is driven .* add a motor per joint"):
+        check_driven(plant)  # ... but a simulated run has nothing to excite it with

@@ -319,6 +319,20 @@ def test_harmonics_are_checked_before_any_work(value: str, message: str) -> None
         validate_run_config(cfg, load_plant("pendulum"))
 
 
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [
+        ("system.periods=1e9", "system.periods"),
+        ("system.sensor.sample_rate_hz=1e9", "system.periods"),
+        ("validation.periods=1e7", "validation.periods"),
+    ],
+)
+def test_a_record_too_long_to_hold_is_refused_before_anything_is_allocated(override: str, key: str) -> None:
+    cfg = compose_config(["system=pendulum", override])
+    with pytest.raises(ConfigError, match=rf"{key}=.* makes a record of .* samples; at most 2e\+06"):
+        validate_run_config(cfg, load_plant("pendulum"))
+
+
 def test_harmonics_are_bounded_by_the_sampling() -> None:
     cfg = compose_config(["system=pendulum", "excitation.harmonics=30", "system.sensor.sample_rate_hz=20"])
     with pytest.raises(ConfigError, match=r"between 1 and .* Nyquist frequency 10 Hz"):
