@@ -618,8 +618,8 @@ def _repair_joint(
         The repaired angle, the repairs, and the rows to drop at the head and at the tail.
     """
     n = len(x)
-    dt = np.diff(t)
-    dt_eff = np.maximum(dt, np.median(dt))  # timestamps jitter; the motion does not go faster for it
+    dt_eff = np.diff(t)
+    np.maximum(dt_eff, np.median(dt_eff), out=dt_eff)  # timestamps jitter; the motion does not go faster for it
     s = np.diff(x)
     # the statistics below work in place on their own temporaries (a long log's copies add up otherwise)
     if max_speed is not None:
@@ -641,10 +641,12 @@ def _repair_joint(
         noise = 1.4826 * float(np.median(np.abs(d2, out=d2), overwrite_input=True)) / np.sqrt(6.0)
         del d2
     floor = max(_MIN_JUMP, 10.0 * noise)
-    bound = speed * dt_eff + floor
+    bound = np.multiply(dt_eff, speed, out=dt_eff)
+    bound += floor
     flagged = np.flatnonzero(np.abs(s) > bound)
     if not flagged.size:
         return x, [], 0, 0
+    dt = np.diff(t)
 
     def at(k: int) -> str:
         return f"between rows {rows[k]} and {rows[k + 1]} (lines {rows[k] + 2}-{rows[k + 1] + 2}, t = {t[k + 1]:.6g} s)"

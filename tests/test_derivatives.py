@@ -154,3 +154,15 @@ def test_reduction_never_drops_below_the_band_and_given_needs_states() -> None:
     data, _ = _dataset()
     with pytest.raises(DataError, match="derivatives='given' needs dq and ddq"):
         derive_states(data, "given")
+
+
+@pytest.mark.parametrize("n", [2, 3, 7, 1000, 70_001])
+def test_blockwise_gradient_is_numpys_bit_for_bit(n: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    from identify.derivatives import gradient
+
+    monkeypatch.setattr("identify.derivatives._GRADIENT_BLOCK", 1000)  # many blocks, and a ragged last one
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.uniform(0.5, 1.5, n))
+    f = rng.normal(size=(n, 3))
+    for column in (f, f[:, 0], f[:, 1:2]):
+        np.testing.assert_array_equal(gradient(column, x), np.gradient(column, x, axis=0))
