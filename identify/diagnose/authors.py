@@ -20,9 +20,19 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-__all__ = ["AUTHOR_KEYS", "author_accel", "author_torque", "load_author_model"]
+__all__ = [
+    "AUTHOR_BASE_NAMES",
+    "AUTHOR_KEYS",
+    "author_accel",
+    "author_base",
+    "author_regressor",
+    "author_torque",
+    "load_author_model",
+]
 
 AUTHOR_KEYS = ("I1", "I2", "Ir", "b1", "b2", "cf1", "cf2", "g", "gr", "l1", "l2", "m1", "m2", "r1", "r2")
+# the combinations their model is linear in (l1, g and gr are fixed by the design)
+AUTHOR_BASE_NAMES = ("I1 + m2 l1^2", "I2", "m2 r2", "m1 r1 + m2 l1", "Ir", "b1", "b2", "cf1", "cf2")
 
 
 def load_author_model(path: Path) -> dict[str, float]:
@@ -70,3 +80,46 @@ def author_accel(p: dict[str, float], q: np.ndarray, dq: np.ndarray, tau: np.nda
     """(N, 2) joint acceleration [rad/s^2] of the authors' model under joint torque tau (N, 2)."""
     M, rest = _terms(p, q, dq)
     return np.linalg.solve(M, (tau - rest)[:, :, None])[:, :, 0]
+
+
+def author_base(p: dict[str, float]) -> np.ndarray:
+    """(9,) the combinations of `AUTHOR_BASE_NAMES` of one of the authors' parameter sets [SI]."""
+    return np.array(
+        [
+            p["I1"] + p["m2"] * p["l1"] ** 2,
+            p["I2"],
+            p["m2"] * p["r2"],
+            p["m1"] * p["r1"] + p["m2"] * p["l1"],
+            p["Ir"],
+            p["b1"],
+            p["b2"],
+            p["cf1"],
+            p["cf2"],
+        ]
+    )
+
+
+def author_regressor(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, *, l1: float, g: float, gr: float) -> np.ndarray:
+    """(N, 2, 9) the authors' model as a regressor: `author_torque(p, ...) = author_regressor(...) @ author_base(p)`.
+
+    Their model form is linear in the nine combinations of `AUTHOR_BASE_NAMES` once the link length l1,
+    gravity g and gear ratio gr are fixed; this lets the same form be refitted by least squares on other data.
+
+    Args:
+        q, dq, ddq: (N, 2) joint states [rad, rad/s, rad/s^2].
+        l1: shoulder-to-elbow length [m]; g: gravity [m/s^2]; gr: gear ratio [1].
+    """
+    c2, s2 = np.cos(q[:, 1]), np.sin(q[:, 1])
+    s1, s12 = np.sin(q[:, 0]), np.sin(q[:, 0] + q[:, 1])
+    a1, a2 = ddq[:, 0], ddq[:, 1]
+    out = np.zeros((len(q), 2, 9))
+    out[:, 0, 0] = a1
+    out[:, :, 1] = (a1 + a2)[:, None]
+    out[:, 0, 2] = l1 * (2 * c2 * a1 + c2 * a2 - 2 * s2 * dq[:, 0] * dq[:, 1] - s2 * dq[:, 1] ** 2) + g * s12
+    out[:, 1, 2] = l1 * (c2 * a1 + s2 * dq[:, 0] ** 2) + g * s12
+    out[:, 0, 3] = g * s1
+    out[:, 0, 4] = (gr**2 + 1) * a1 - gr * a2
+    out[:, 1, 4] = gr**2 * a2 - gr * a1
+    out[:, 0, 5], out[:, 1, 6] = dq[:, 0], dq[:, 1]
+    out[:, 0, 7], out[:, 1, 8] = np.arctan(100 * dq[:, 0]), np.arctan(100 * dq[:, 1])
+    return out
