@@ -42,6 +42,7 @@ from scipy import signal
 from dynamics.plant import load_plant
 from envs.dataset import Dataset
 from envs.measured import read_many
+from harness.diagnose import record_offsets
 from harness.setup import CONF_DIR
 from identify.derivatives import derive_states
 from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model
@@ -146,6 +147,8 @@ def lofo_table(session: str) -> dict[str, Any]:
             derivative_options={"cutoff_hz": float(opts.cutoff_hz)},
             selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
             band_hz=float(cfg.data.band_hz),
+            window_s=float(opts.window_s),
+            record_offsets=record_offsets(cfg),  # as sysid-diagnose resolves it (the data config's, here)
         )
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"

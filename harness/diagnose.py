@@ -46,7 +46,7 @@ from identify.diagnose import (
 )
 from identify.excitation_check import check_excitation
 
-__all__ = ["CONF_DIR", "data_paths", "main", "reference_models", "run"]
+__all__ = ["CONF_DIR", "data_paths", "main", "record_offsets", "reference_models", "run"]
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -131,6 +131,16 @@ def _band_hz(cfg: DictConfig) -> float | None:
     return float(band) if band is not None else None
 
 
+def record_offsets(cfg: DictConfig) -> bool:
+    """Whether a torque offset per training file is fitted as a nuisance: `diagnose.record_offsets` when set,
+    else the data config's `record_offsets` (a property of the sensor, such as drivers whose torque estimate is
+    zeroed anew at every power-up), else False."""
+    flag = cfg.diagnose.get("record_offsets")
+    if flag is None:
+        flag = cfg.data.get("record_offsets")
+    return bool(flag) if flag is not None else False
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content.
 
@@ -205,7 +215,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         window_s=float(opts.window_s),
         references=references,
         band_hz=_band_hz(cfg),
-        record_offsets=bool(opts.get("record_offsets", False)),
+        record_offsets=record_offsets(cfg),
     )
     mjcf_name = f"{plant.name}_calibrated.xml"
     payload = result.to_dict(mjcf_name=mjcf_name)

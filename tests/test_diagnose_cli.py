@@ -17,6 +17,7 @@ from dynamics.errors import DataError
 from dynamics.plant import load_plant
 from envs.dataset import Dataset, write_csv
 from envs.effects import HiddenEffect
+from harness.validate import ConfigError
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
 OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml")
@@ -102,6 +103,33 @@ def test_band_comes_from_the_data_config_unless_set() -> None:
     )
     assert cli._band_hz(override) == 2.0
     assert cli._band_hz(compose_config(["system=pendulum"], config_name="diagnose")) is None
+
+
+def test_record_offsets_come_from_the_data_config_unless_set() -> None:
+    # a sensor re-zeroed at every power-up is a property of the logs, like the band: `diagnose.record_offsets`
+    # (null by default) defers to the data config's `record_offsets`, false where neither says
+    plain = compose_config(["system=two_link", "data=dfki_double_pendulum"], config_name="diagnose")
+    assert cli.record_offsets(plain) is False
+    from_data = compose_config(
+        ["system=two_link", "data=dfki_double_pendulum", "+data.record_offsets=true"], config_name="diagnose"
+    )
+    assert cli.record_offsets(from_data) is True
+    both = compose_config(
+        [
+            "system=two_link",
+            "data=dfki_double_pendulum",
+            "+data.record_offsets=true",
+            "diagnose.record_offsets=false",
+        ],
+        config_name="diagnose",
+    )
+    assert cli.record_offsets(both) is False
+
+
+def test_record_offsets_must_be_a_flag(csv_files: list[Path], tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"diagnose\.record_offsets must be true or false"):
+        cli.run(_config(csv_files, tmp_path, "diagnose.record_offsets=3"))
+    assert not any(tmp_path.iterdir())
 
 
 def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:

@@ -169,7 +169,12 @@ def _scores(
     rss = float(bbt - 2 * ct @ x + x @ Gt @ x)
     held = np.empty(n_folds)
     for f in range(n_folds):
-        xf = _solve_gram(Gt - G[f], ct - c[f], lo, hi)
+        Gf, cf = Gt - G[f], ct - c[f]
+        # a column that no training row of this fold touches (a per-record nuisance of the held-out record) has
+        # no estimate: it stays 0 (the subtraction leaves rounding residue that would give it any value)
+        seen = np.diag(Gf) > 1e-9 * np.maximum(np.diag(Gt), 1e-300)
+        xf = np.zeros(p)
+        xf[seen] = _solve_gram(Gf[np.ix_(seen, seen)], cf[seen], lo[seen], hi[seen])
         held[f] = float(bb[f] - 2 * c[f] @ xf + xf @ G[f] @ xf) / size[f]
     return max(rss, 0.0), held
 
