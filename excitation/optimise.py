@@ -24,7 +24,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from dynamics.base import BaseParameters, base_parameters
-from dynamics.errors import InfeasibleExcitationError
+from dynamics.errors import InfeasibleExcitationError, RankDeficientError
 from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
@@ -264,8 +264,11 @@ class _PositionProblem:
         self.B = np.stack(shape.basis(self.t_lim))  # (3, N, 2H): q - q0, dq, ddq
         self.P, self.c, self.scale = self._linear_rows()
         self.act = np.flatnonzero(np.isfinite(limits.tau_max))
+        # clearance on every other point of the limits' grid (the result is checked densely afterwards)
+        self.clear_rows = slice(None, None, 2) if limits.clearance is not None else slice(0, 0)
         self.evaluations = 0
         self._cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
+        self._clear_cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
 
     def design(self, x: np.ndarray) -> FourierDesign:
         return FourierDesign.from_vector(x, n_joints=self.n, harmonics=self.H, base_freq_hz=self.f0)
@@ -318,14 +321,41 @@ class _PositionProblem:
         self._cache = (key, r, J)
         return r, J
 
+    def _clearance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows d / clearance - 1 / bound >= 0 (d the smooth smallest distance) on the clearance grid, and
+        their Jacobian: the distance's gradient in q chained through q's linear map from x."""
+        key = x.tobytes()
+        if self._clear_cache is not None and self._clear_cache[0] == key:
+            return self._clear_cache[1], self._clear_cache[2]
+        clearance = self.limits.clearance
+        if clearance is None:
+            return np.zeros(0), np.zeros((0, len(x)))
+        t = self.t_lim[self.clear_rows]
+        q = self.design(x).evaluate(t)[0]
+        d, g = clearance.smooth_distance(q)  # (K,), (K, n)
+        B0 = self.B[0][self.clear_rows]  # (K, 2H)
+        K = len(t)
+        J = np.concatenate(
+            [
+                (g[:, :, None] * B0[:, None, : self.H]).reshape(K, -1),
+                (g[:, :, None] * B0[:, None, self.H :]).reshape(K, -1),
+                g,
+            ],
+            axis=1,
+        ) / clearance.clearance_m
+        c = d / clearance.clearance_m - 1.0 / self.bound
+        self._clear_cache = (key, c, J)
+        return c, J
+
     def constraints(self, x: np.ndarray) -> np.ndarray:
-        """bound^2 - r^2 >= 0: both sides of every bound in one row (half the rows of a QP subproblem)."""
+        """bound^2 - r^2 >= 0: both sides of every bound in one row (half the rows of a QP subproblem); then
+        the clearance rows."""
         r = self._ratios(x)[0]
-        return self.bound**2 - r**2
+        return np.concatenate([self.bound**2 - r**2, self._clearance(x)[0]])
 
     def constraints_jacobian(self, x: np.ndarray) -> np.ndarray:
         r, J = self._ratios(x)
-        return -2.0 * r[:, None] * J
+        return np.vstack([-2.0 * r[:, None] * J, self._clearance(x)[1]])
 
     def objective(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         self.evaluations += 1
@@ -384,6 +414,10 @@ class _PositionProblem:
             constraints=constraints,
             options={"maxiter": max_iter, "ftol": 1e-4},
         )
+        import os
+        if os.environ.get("H10_DEBUG"):
+            c = self._clearance(res.x)[0]
+            print("SLSQP", res.status, res.message, res.nit, "min ratio-row", float(self.constraints(res.x)[: len(self.c) + 0].min()), "min clear row", float(c.min()) if len(c) else None, "q0", np.round(res.x[-self.n:], 3), "start clear", float(self._clearance(x0)[0].min()) if len(c) else None)
         return np.asarray(res.x)
 
     def run(
@@ -398,6 +432,7 @@ class _PositionProblem:
         """Optimise from every start; the best result that holds the limits on the dense grid wins."""
         t_check = grid(shapes[0], CHECK_DENSITY * len(self.t_lim))
         best: tuple[float, FourierDesign] | None = None
+        failure: Exception = InfeasibleExcitationError("no start")
         start_j: list[float] = []
         final_j: list[float] = []
         for i, shape in enumerate(shapes):
@@ -409,12 +444,22 @@ class _PositionProblem:
             try:
                 design = _shrink_into_limits(self.plant, self.design(x), self.limits, t_check)
             except InfeasibleExcitationError:
-                design = shape  # SLSQP left the feasible set for good (offsets out of range): keep the start
-            value, cond = self.exact(design)
+                # SLSQP left the feasible set for good (offsets out of range or in collision): keep the start,
+                # shrunk into the limits it may break (clearance, which the start's scaling does not check)
+                try:
+                    design = _shrink_into_limits(self.plant, shape, self.limits, t_check)
+                    value, cond = self.exact(design)
+                except (InfeasibleExcitationError, RankDeficientError) as err:
+                    failure = err  # shrunk this far, the start no longer excites every base parameter
+                    final_j.append(float("inf"))
+                    continue
+            else:
+                value, cond = self.exact(design)
             final_j.append(cond)
             if best is None or value < best[0]:
                 best = (value, design)
-        assert best is not None
+        if best is None:
+            raise failure
         if progress is not None:
             progress(1.0, f"{len(shapes)} starts, best cond {min(final_j):.4g}")
         return best[1], start_j, final_j
@@ -432,7 +477,7 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
 
     def worst(s: float) -> tuple[float, dict[str, float]]:
         ratios = position_limit_ratios(plant, design.scaled(s), limits, t)
-        if "clearance" in ratios:  # SLSQP does not see it: keep 0.5 % in hand for the denser check after
+        if "clearance" in ratios:  # keep 0.5 % in hand for the denser check after (on a different grid)
             ratios["clearance"] *= 1.0 + _CLEARANCE_MARGIN
         return max(ratios.values()), ratios
 
