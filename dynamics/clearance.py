@@ -33,9 +33,7 @@ class _Shape:
     radius: float
 
 
-def _segment_closest(
-    p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def _segment_closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The closest points c1 on segments p1-q1 and c2 on p2-q2, each (N, 3) from segments each (N, 3)."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e = np.sum(d1 * d1, axis=1), np.sum(d2 * d2, axis=1)
@@ -170,7 +168,10 @@ class Clearance:
             gap = np.linalg.norm(c2 - c1, axis=1)
             d_cap = gap - radii[ci] - radii[cj]
             d_geo = np.array(
-                [mujoco.mj_geomDistance(m, data, int(a), int(b), distmax, None) for a, b in zip(geoms[gi], geoms[gj])]
+                [
+                    mujoco.mj_geomDistance(m, data, int(a), int(b), distmax, None)
+                    for a, b in zip(geoms[gi], geoms[gj], strict=True)
+                ]
             )
             low = np.argmin(ends[floor, :, 2], axis=1)
             floor_pts = ends[floor, low]

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from dynamics.base import BaseParameters, base_parameters
+from dynamics.clearance import Clearance
 from dynamics.errors import InfeasibleExcitationError, RankDeficientError
 from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
@@ -335,14 +336,17 @@ class _PositionProblem:
         d, g = clearance.smooth_distance(q)  # (K,), (K, n)
         B0 = self.B[0][self.clear_rows]  # (K, 2H)
         K = len(t)
-        J = np.concatenate(
-            [
-                (g[:, :, None] * B0[:, None, : self.H]).reshape(K, -1),
-                (g[:, :, None] * B0[:, None, self.H :]).reshape(K, -1),
-                g,
-            ],
-            axis=1,
-        ) / clearance.clearance_m
+        J = (
+            np.concatenate(
+                [
+                    (g[:, :, None] * B0[:, None, : self.H]).reshape(K, -1),
+                    (g[:, :, None] * B0[:, None, self.H :]).reshape(K, -1),
+                    g,
+                ],
+                axis=1,
+            )
+            / clearance.clearance_m
+        )
         c = d / clearance.clearance_m - 1.0 / self.bound
         self._clear_cache = (key, c, J)
         return c, J
@@ -414,10 +418,6 @@ class _PositionProblem:
             constraints=constraints,
             options={"maxiter": max_iter, "ftol": 1e-4},
         )
-        import os
-        if os.environ.get("H10_DEBUG"):
-            c = self._clearance(res.x)[0]
-            print("SLSQP", res.status, res.message, res.nit, "min ratio-row", float(self.constraints(res.x)[: len(self.c) + 0].min()), "min clear row", float(c.min()) if len(c) else None, "q0", np.round(res.x[-self.n:], 3), "start clear", float(self._clearance(x0)[0].min()) if len(c) else None)
         return np.asarray(res.x)
 
     def run(
@@ -497,13 +497,45 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
     return design.scaled(lo)
 
 
+_OPEN_LENGTH_M = 0.1
+
+
+def _open_pose(clearance: Clearance, limits: Limits, q: np.ndarray, *, steps: int = 40) -> np.ndarray:
+    """A pose near `q` (nv,) with room around it: a projected ascent (into the ranges) of the soft minimum of
+    every distance with a long smoothing length (`_OPEN_LENGTH_M`), so that every near pair and floor
+    distance pushes, not only the nearest."""
+    d, g = clearance.smooth_distance(q[None], temperature_m=_OPEN_LENGTH_M)
+    step = 0.2
+    for _ in range(steps):
+        norm = float(np.linalg.norm(g[0]))
+        if norm == 0 or step < 1e-3:
+            break
+        trial = np.clip(q + step * g[0] / norm, limits.q_min, limits.q_max)
+        d_t, g_t = clearance.smooth_distance(trial[None], temperature_m=_OPEN_LENGTH_M)
+        if d_t[0] > d[0]:
+            q, d, g = trial, d_t, g_t
+        else:
+            step *= 0.5
+    return q
+
+
 def _position_starts(
     plant: Plant, limits: Limits, problem: _PositionProblem, rng: np.random.Generator, starts: int, at_rest: bool
 ) -> list[FourierDesign]:
-    """The default design and `starts - 1` random ones, each scaled into the limits (and brought to rest)."""
+    """The default design and `starts - 1` random ones, each scaled into the limits (and brought to rest).
+
+    They move about the ranges' middle unless the default design breaks the clearance there (an arm
+    stretched out above the floor): then about an open pose (`_open_pose`), so that SLSQP starts near the
+    clearance it has to keep.
+    """
     H, f0 = problem.H, problem.f0
-    shapes = [default_design(plant, limits, harmonics=H, base_freq_hz=f0)]
-    shapes += [random_design(plant, limits, harmonics=H, base_freq_hz=f0, rng=rng) for _ in range(starts - 1)]
+    q0 = None
+    first = default_design(plant, limits, harmonics=H, base_freq_hz=f0)
+    if limits.clearance is not None and limits.clearance.ratio(first.evaluate(problem.t_lim)[0]) > 1.0:
+        q0 = _open_pose(limits.clearance, limits, first.q0)
+        first = default_design(plant, limits, harmonics=H, base_freq_hz=f0, q0=q0)
+    shapes = [first]
+    shapes += [random_design(plant, limits, harmonics=H, base_freq_hz=f0, rng=rng, q0=q0) for _ in range(starts - 1)]
     if not at_rest:
         return shapes
     E = problem.rest_rows()
