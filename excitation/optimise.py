@@ -42,6 +42,7 @@ __all__ = [
     "assess_design",
     "optimise_excitation",
     "position_limit_ratios",
+    "within_clearance",
 ]
 
 GRADIENTS = ("analytic", "finite_difference")
@@ -495,6 +496,23 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if worst(mid)[0] <= 1.0 else (lo, mid)
     return design.scaled(lo)
+
+
+def within_clearance(plant: Plant, limits: Limits, design: FourierDesign) -> FourierDesign:
+    """A position design kept clear of the floor and of the arm itself (for the default and random designs,
+    which are scaled to every other limit): where it breaks the clearance it is moved about an open pose
+    (`_open_pose`) and scaled again to the limits, then shrunk until the clearance holds on the check grid.
+
+    Raises:
+        InfeasibleExcitationError: even the offsets alone break the clearance (named in the message).
+    """
+    if limits.clearance is None:
+        return design
+    t = grid(design, CHECK_DENSITY * 100)
+    if limits.clearance.ratio(design.evaluate(t)[0]) > 1.0:
+        q0 = _open_pose(limits.clearance, limits, design.q0)
+        design = fit_to_limits(plant, FourierDesign(design.base_freq_hz, design.a, design.b, q0), limits)
+    return _shrink_into_limits(plant, design, limits, t)
 
 
 _OPEN_LENGTH_M = 0.1

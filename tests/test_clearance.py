@@ -14,15 +14,19 @@ import numpy as np
 import pytest
 
 from dynamics.plant import load_plant
+from dynamics.regressor import ParameterModel
 from envs.simulate import _hard_friction
+from excitation.designs import default_design, grid, random_design
 from excitation.limits import limits_for
-from excitation.optimise import _open_pose
+from excitation.optimise import _open_pose, position_limit_ratios
+from excitation.registry import design_excitation
 
 ROBOTS = Path(__file__).resolve().parents[2] / "shared" / "robots"
 
 # a planar 3-link arm on the floor: link a up from the base, links b and c fold back towards it
 _ARM = """
 <mujoco model="fold3">
+  <compiler angle="radian"/>
   <worldbody>
     <body name="a" pos="0 0 0.1">
       <joint name="j1" axis="0 0 1" range="-3 3"/>
@@ -140,3 +144,31 @@ def _write(text: str) -> Path:
     path = Path(tempfile.mkdtemp()) / "model.xml"
     path.write_text(text)
     return path
+
+
+def test_random_and_default_designs_keep_the_clearance_that_their_plain_scaling_breaks(arm) -> None:
+    plant, _ = arm
+    limits = limits_for(plant, velocity=3.0, acceleration=10.0, clearance_m=0.02)  # swings that fold the arm
+    model = ParameterModel(plant)
+    t = grid(default_design(plant, limits, harmonics=3, base_freq_hz=0.1), 4000)
+    for name in ("random", "default"):
+        plain = (random_design if name == "random" else default_design)(
+            plant,
+            limits,
+            harmonics=3,
+            base_freq_hz=0.1,
+            **({"rng": np.random.default_rng(3)} if name == "random" else {}),
+        )
+        assert limits.clearance.min_distance(plain.evaluate(t)[0]) < 0.02  # scaled to q, dq, ddq, tau only
+        safe = design_excitation(
+            name,
+            plant,
+            limits,
+            model=model,
+            harmonics=3,
+            base_freq_hz=0.1,
+            torque_driven=False,
+            rng=np.random.default_rng(3),
+        )
+        assert limits.clearance.min_distance(safe.evaluate(t)[0]) >= 0.02
+        assert max(position_limit_ratios(plant, safe, limits, t).values()) <= 1.0
