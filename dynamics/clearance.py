@@ -33,8 +33,8 @@ class _Shape:
     radius: float
 
 
-def _segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """(N,) shortest distance between segments p1-q1 and p2-q2, each (N, 3)."""
+def _segment_closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The closest points c1 on segments p1-q1 and c2 on p2-q2, each (N, 3) from segments each (N, 3)."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e = np.sum(d1 * d1, axis=1), np.sum(d2 * d2, axis=1)
     f, c, b = np.sum(d2 * r, axis=1), np.sum(d1 * r, axis=1), np.sum(d1 * d2, axis=1)
@@ -47,7 +47,13 @@ def _segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.nda
         np.where(t > 1, np.clip((b - c) / np.where(a > 1e-12, a, 1.0), 0, 1), s),
     )
     t = np.clip(t, 0, 1)
-    return np.linalg.norm((p1 + d1 * s[:, None]) - (p2 + d2 * t[:, None]), axis=1)
+    return p1 + d1 * s[:, None], p2 + d2 * t[:, None]
+
+
+def _segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """(N,) shortest distance between segments p1-q1 and p2-q2, each (N, 3)."""
+    c1, c2 = _segment_closest(p1, q1, p2, q2)
+    return np.linalg.norm(c1 - c2, axis=1)
 
 
 class Clearance:
@@ -115,6 +121,90 @@ class Clearance:
         """clearance / smallest distance: <= 1 where the clearance holds (inf once links touch)."""
         dist = self.min_distance(q)
         return float(self.clearance_m / dist) if dist > 0 else float("inf")
+
+    def smooth_distance(self, q: np.ndarray, *, temperature_m: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+        """A smooth lower bound of the smallest distance at each pose, and its gradient in the joint angles.
+
+        The soft minimum -T log(sum_k exp(-d_k / T)) over every checked pair and floor distance d_k (at most
+        T log(count) below the true minimum, so a constraint on it is conservative). Each d_k's gradient is
+        that of the distance between its two witness points held fixed on their bodies (exact where the
+        witness points are unique): u . (J_2 - J_1) with u the unit vector from the first to the second.
+
+        Args:
+            q: (N, nv) joint angles [rad].
+            temperature_m: T [m], the soft minimum's smoothing length.
+
+        Returns:
+            d: (N,) soft-minimum distance [m].
+            grad: (N, nv) its gradient [m/rad].
+        """
+        q = np.atleast_2d(q)
+        n, nv = q.shape
+        out_d, out_g = np.full(n, np.inf), np.zeros((n, nv))
+        if not self.pairs and not self.floor:
+            return out_d, out_g
+        m = self.plant.mj_model
+        data = mujoco.MjData(m)
+        is_geo = np.array([min(self.shapes[i].geom, self.shapes[j].geom) >= 0 for i, j in self.pairs], dtype=bool)
+        pi = np.array([i for i, _ in self.pairs], dtype=int)
+        pj = np.array([j for _, j in self.pairs], dtype=int)
+        ci, cj, gi, gj = pi[~is_geo], pj[~is_geo], pi[is_geo], pj[is_geo]
+        geoms = np.array([s.geom for s in self.shapes], dtype=int)
+        bodies = np.array([s.body for s in self.shapes], dtype=int)
+        local = np.array([s.ends for s in self.shapes]).reshape(-1, 2, 3)  # (shapes, 2, 3) in the body frame
+        radii = np.array([s.radius for s in self.shapes])
+        floor = np.array(self.floor, dtype=int)
+        fromto = np.empty(6)
+        jac1, jac2 = np.empty((3, nv)), np.empty((3, nv))
+        distmax = self.clearance_m + 20 * temperature_m  # farther pairs weigh < exp(-20) in the soft minimum
+        down = np.array([0.0, 0.0, -1.0])
+        for s in range(n):
+            data.qpos[:] = q[s]
+            mujoco.mj_kinematics(m, data)
+            mujoco.mj_comPos(m, data)  # mj_jac needs cdof and subtree_com
+            R, p = data.xmat[bodies].reshape(-1, 3, 3), data.xpos[bodies]
+            ends = p[:, None, :] + np.einsum("kab,keb->kea", R, local)  # (shapes, 2, 3) in the world
+            c1, c2 = _segment_closest(ends[ci, 0], ends[ci, 1], ends[cj, 0], ends[cj, 1])
+            gap = np.linalg.norm(c2 - c1, axis=1)
+            d_cap = gap - radii[ci] - radii[cj]
+            d_geo = np.array(
+                [
+                    mujoco.mj_geomDistance(m, data, int(a), int(b), distmax, None)
+                    for a, b in zip(geoms[gi], geoms[gj], strict=True)
+                ]
+            )
+            low = np.argmin(ends[floor, :, 2], axis=1)
+            floor_pts = ends[floor, low]
+            d_floor = floor_pts[:, 2] - radii[floor]
+            dk = np.concatenate([d_cap, d_geo, d_floor])
+            lowest = float(dk.min())
+            w = np.exp(-(dk - lowest) / temperature_m)
+            total = float(w.sum())
+            out_d[s] = lowest - temperature_m * np.log(total)
+            nc, ng = len(ci), len(gi)
+            beyond = np.zeros(len(dk), dtype=bool)
+            beyond[nc : nc + ng] = d_geo >= distmax  # reported as distmax, no witness points: gradient zero
+            for k in np.flatnonzero((w / total > 1e-6) & ~beyond):
+                if k < nc:  # capsule pair: witness points on the segments (the radii are constant)
+                    b1, p1, b2, p2 = bodies[ci[k]], c1[k], bodies[cj[k]], c2[k]
+                    u = (p2 - p1) / max(float(gap[k]), 1e-12)
+                elif k < nc + ng:  # collision geoms: MuJoCo's witness points
+                    a, b = int(geoms[gi[k - nc]]), int(geoms[gj[k - nc]])
+                    dist = mujoco.mj_geomDistance(m, data, a, b, distmax, fromto)
+                    if dist == 0:
+                        continue
+                    b1, p1, b2, p2 = bodies[gi[k - nc]], fromto[:3].copy(), bodies[gj[k - nc]], fromto[3:].copy()
+                    v = p2 - p1
+                    u = np.sign(dist) * v / max(float(np.linalg.norm(v)), 1e-12)
+                else:  # floor: the shape's lowest end point moving up
+                    b1, p1, b2, p2, u = bodies[floor[k - nc - ng]], floor_pts[k - nc - ng], -1, p, down
+                mujoco.mj_jac(m, data, jac1, None, p1, int(b1))
+                g = -u @ jac1
+                if b2 >= 0:
+                    mujoco.mj_jac(m, data, jac2, None, p2, int(b2))
+                    g = g + u @ jac2
+                out_g[s] += (w[k] / total) * g
+        return out_d, out_g
 
 
 def _geom_capsule(m: mujoco.MjModel, g: int) -> tuple[tuple[np.ndarray, np.ndarray], float]:

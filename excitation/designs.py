@@ -53,10 +53,18 @@ def random_shape(
 
 
 def default_design(
-    plant: Plant, limits: Limits, *, harmonics: int, base_freq_hz: float, torque_driven: bool = False
+    plant: Plant,
+    limits: Limits,
+    *,
+    harmonics: int,
+    base_freq_hz: float,
+    torque_driven: bool = False,
+    q0: np.ndarray | None = None,
 ) -> FourierDesign:
-    """The fixed default shape (`default_shape`), scaled to the limits; every base parameter is excited."""
-    return _fit(plant, default_shape(plant.nv, harmonics, base_freq_hz, _centre(limits)), limits, torque_driven)
+    """The fixed default shape (`default_shape`) about `q0` (None: the ranges' middle), scaled to the limits;
+    every base parameter is excited."""
+    q0 = _centre(limits) if q0 is None else q0
+    return _fit(plant, default_shape(plant.nv, harmonics, base_freq_hz, q0), limits, torque_driven)
 
 
 def random_design(
@@ -67,9 +75,11 @@ def random_design(
     base_freq_hz: float,
     rng: np.random.Generator,
     torque_driven: bool = False,
+    q0: np.ndarray | None = None,
 ) -> FourierDesign:
-    """A random shape (`random_shape`), scaled to the limits."""
-    return _fit(plant, random_shape(plant.nv, harmonics, base_freq_hz, _centre(limits), rng), limits, torque_driven)
+    """A random shape (`random_shape`) about `q0` (None: the ranges' middle), scaled to the limits."""
+    q0 = _centre(limits) if q0 is None else q0
+    return _fit(plant, random_shape(plant.nv, harmonics, base_freq_hz, q0, rng), limits, torque_driven)
 
 
 def _fit(plant: Plant, shape: FourierDesign, limits: Limits, torque_driven: bool) -> FourierDesign:

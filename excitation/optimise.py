@@ -24,7 +24,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from dynamics.base import BaseParameters, base_parameters
-from dynamics.errors import InfeasibleExcitationError
+from dynamics.clearance import Clearance
+from dynamics.errors import InfeasibleExcitationError, RankDeficientError
 from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
@@ -41,6 +42,7 @@ __all__ = [
     "assess_design",
     "optimise_excitation",
     "position_limit_ratios",
+    "within_clearance",
 ]
 
 GRADIENTS = ("analytic", "finite_difference")
@@ -264,8 +266,11 @@ class _PositionProblem:
         self.B = np.stack(shape.basis(self.t_lim))  # (3, N, 2H): q - q0, dq, ddq
         self.P, self.c, self.scale = self._linear_rows()
         self.act = np.flatnonzero(np.isfinite(limits.tau_max))
+        # clearance on every other point of the limits' grid (the result is checked densely afterwards)
+        self.clear_rows = slice(None, None, 2) if limits.clearance is not None else slice(0, 0)
         self.evaluations = 0
         self._cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
+        self._clear_cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
 
     def design(self, x: np.ndarray) -> FourierDesign:
         return FourierDesign.from_vector(x, n_joints=self.n, harmonics=self.H, base_freq_hz=self.f0)
@@ -318,14 +323,44 @@ class _PositionProblem:
         self._cache = (key, r, J)
         return r, J
 
+    def _clearance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows d / clearance - 1 / bound >= 0 (d the smooth smallest distance) on the clearance grid, and
+        their Jacobian: the distance's gradient in q chained through q's linear map from x."""
+        key = x.tobytes()
+        if self._clear_cache is not None and self._clear_cache[0] == key:
+            return self._clear_cache[1], self._clear_cache[2]
+        clearance = self.limits.clearance
+        if clearance is None:
+            return np.zeros(0), np.zeros((0, len(x)))
+        t = self.t_lim[self.clear_rows]
+        q = self.design(x).evaluate(t)[0]
+        d, g = clearance.smooth_distance(q)  # (K,), (K, n)
+        B0 = self.B[0][self.clear_rows]  # (K, 2H)
+        K = len(t)
+        J = (
+            np.concatenate(
+                [
+                    (g[:, :, None] * B0[:, None, : self.H]).reshape(K, -1),
+                    (g[:, :, None] * B0[:, None, self.H :]).reshape(K, -1),
+                    g,
+                ],
+                axis=1,
+            )
+            / clearance.clearance_m
+        )
+        c = d / clearance.clearance_m - 1.0 / self.bound
+        self._clear_cache = (key, c, J)
+        return c, J
+
     def constraints(self, x: np.ndarray) -> np.ndarray:
-        """bound^2 - r^2 >= 0: both sides of every bound in one row (half the rows of a QP subproblem)."""
+        """bound^2 - r^2 >= 0: both sides of every bound in one row (half the rows of a QP subproblem); then
+        the clearance rows."""
         r = self._ratios(x)[0]
-        return self.bound**2 - r**2
+        return np.concatenate([self.bound**2 - r**2, self._clearance(x)[0]])
 
     def constraints_jacobian(self, x: np.ndarray) -> np.ndarray:
         r, J = self._ratios(x)
-        return -2.0 * r[:, None] * J
+        return np.vstack([-2.0 * r[:, None] * J, self._clearance(x)[1]])
 
     def objective(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         self.evaluations += 1
@@ -398,6 +433,7 @@ class _PositionProblem:
         """Optimise from every start; the best result that holds the limits on the dense grid wins."""
         t_check = grid(shapes[0], CHECK_DENSITY * len(self.t_lim))
         best: tuple[float, FourierDesign] | None = None
+        failure: Exception = InfeasibleExcitationError("no start")
         start_j: list[float] = []
         final_j: list[float] = []
         for i, shape in enumerate(shapes):
@@ -409,12 +445,22 @@ class _PositionProblem:
             try:
                 design = _shrink_into_limits(self.plant, self.design(x), self.limits, t_check)
             except InfeasibleExcitationError:
-                design = shape  # SLSQP left the feasible set for good (offsets out of range): keep the start
-            value, cond = self.exact(design)
+                # SLSQP left the feasible set for good (offsets out of range or in collision): keep the start,
+                # shrunk into the limits it may break (clearance, which the start's scaling does not check)
+                try:
+                    design = _shrink_into_limits(self.plant, shape, self.limits, t_check)
+                    value, cond = self.exact(design)
+                except (InfeasibleExcitationError, RankDeficientError) as err:
+                    failure = err  # shrunk this far, the start no longer excites every base parameter
+                    final_j.append(float("inf"))
+                    continue
+            else:
+                value, cond = self.exact(design)
             final_j.append(cond)
             if best is None or value < best[0]:
                 best = (value, design)
-        assert best is not None
+        if best is None:
+            raise failure
         if progress is not None:
             progress(1.0, f"{len(shapes)} starts, best cond {min(final_j):.4g}")
         return best[1], start_j, final_j
@@ -432,7 +478,7 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
 
     def worst(s: float) -> tuple[float, dict[str, float]]:
         ratios = position_limit_ratios(plant, design.scaled(s), limits, t)
-        if "clearance" in ratios:  # SLSQP does not see it: keep 0.5 % in hand for the denser check after
+        if "clearance" in ratios:  # keep 0.5 % in hand for the denser check after (on a different grid)
             ratios["clearance"] *= 1.0 + _CLEARANCE_MARGIN
         return max(ratios.values()), ratios
 
@@ -452,13 +498,62 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
     return design.scaled(lo)
 
 
+def within_clearance(plant: Plant, limits: Limits, design: FourierDesign) -> FourierDesign:
+    """A position design kept clear of the floor and of the arm itself (for the default and random designs,
+    which are scaled to every other limit): where it breaks the clearance it is moved about an open pose
+    (`_open_pose`) and scaled again to the limits, then shrunk until the clearance holds on the check grid.
+
+    Raises:
+        InfeasibleExcitationError: even the offsets alone break the clearance (named in the message).
+    """
+    if limits.clearance is None:
+        return design
+    t = grid(design, CHECK_DENSITY * 100)
+    if limits.clearance.ratio(design.evaluate(t)[0]) > 1.0:
+        q0 = _open_pose(limits.clearance, limits, design.q0)
+        design = fit_to_limits(plant, FourierDesign(design.base_freq_hz, design.a, design.b, q0), limits)
+    return _shrink_into_limits(plant, design, limits, t)
+
+
+_OPEN_LENGTH_M = 0.1
+
+
+def _open_pose(clearance: Clearance, limits: Limits, q: np.ndarray, *, steps: int = 40) -> np.ndarray:
+    """A pose near `q` (nv,) with room around it: a projected ascent (into the ranges) of the soft minimum of
+    every distance with a long smoothing length (`_OPEN_LENGTH_M`), so that every near pair and floor
+    distance pushes, not only the nearest."""
+    d, g = clearance.smooth_distance(q[None], temperature_m=_OPEN_LENGTH_M)
+    step = 0.2
+    for _ in range(steps):
+        norm = float(np.linalg.norm(g[0]))
+        if norm == 0 or step < 1e-3:
+            break
+        trial = np.clip(q + step * g[0] / norm, limits.q_min, limits.q_max)
+        d_t, g_t = clearance.smooth_distance(trial[None], temperature_m=_OPEN_LENGTH_M)
+        if d_t[0] > d[0]:
+            q, d, g = trial, d_t, g_t
+        else:
+            step *= 0.5
+    return q
+
+
 def _position_starts(
     plant: Plant, limits: Limits, problem: _PositionProblem, rng: np.random.Generator, starts: int, at_rest: bool
 ) -> list[FourierDesign]:
-    """The default design and `starts - 1` random ones, each scaled into the limits (and brought to rest)."""
+    """The default design and `starts - 1` random ones, each scaled into the limits (and brought to rest).
+
+    They move about the ranges' middle unless the default design breaks the clearance there (an arm
+    stretched out above the floor): then about an open pose (`_open_pose`), so that SLSQP starts near the
+    clearance it has to keep.
+    """
     H, f0 = problem.H, problem.f0
-    shapes = [default_design(plant, limits, harmonics=H, base_freq_hz=f0)]
-    shapes += [random_design(plant, limits, harmonics=H, base_freq_hz=f0, rng=rng) for _ in range(starts - 1)]
+    q0 = None
+    first = default_design(plant, limits, harmonics=H, base_freq_hz=f0)
+    if limits.clearance is not None and limits.clearance.ratio(first.evaluate(problem.t_lim)[0]) > 1.0:
+        q0 = _open_pose(limits.clearance, limits, first.q0)
+        first = default_design(plant, limits, harmonics=H, base_freq_hz=f0, q0=q0)
+    shapes = [first]
+    shapes += [random_design(plant, limits, harmonics=H, base_freq_hz=f0, rng=rng, q0=q0) for _ in range(starts - 1)]
     if not at_rest:
         return shapes
     E = problem.rest_rows()

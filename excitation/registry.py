@@ -1,4 +1,5 @@
-"""Excitation designs chosen by name."""
+"""Excitation designs chosen by name; the default and random position designs keep the clearance too (the
+validation motion is a random design run on the same robot)."""
 
 from __future__ import annotations
 
@@ -12,13 +13,14 @@ from dynamics.regressor import ParameterModel
 from excitation.designs import default_design, random_design
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
-from excitation.optimise import optimise_excitation
+from excitation.optimise import optimise_excitation, within_clearance
 
 __all__ = ["EXCITATIONS", "design_excitation"]
 
 
 def _default(plant: Plant, limits: Limits, *, harmonics: int, base_freq_hz: float, torque_driven: bool, **_: Any):  # type: ignore[no-untyped-def]
-    return default_design(plant, limits, harmonics=harmonics, base_freq_hz=base_freq_hz, torque_driven=torque_driven)
+    design = default_design(plant, limits, harmonics=harmonics, base_freq_hz=base_freq_hz, torque_driven=torque_driven)
+    return design if torque_driven else within_clearance(plant, limits, design)
 
 
 def _random(  # type: ignore[no-untyped-def]
@@ -31,9 +33,10 @@ def _random(  # type: ignore[no-untyped-def]
     rng: np.random.Generator,
     **_: Any,
 ):
-    return random_design(
+    design = random_design(
         plant, limits, harmonics=harmonics, base_freq_hz=base_freq_hz, rng=rng, torque_driven=torque_driven
     )
+    return design if torque_driven else within_clearance(plant, limits, design)
 
 
 def _optimised(plant: Plant, limits: Limits, **kwargs: Any) -> FourierDesign:

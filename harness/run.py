@@ -40,7 +40,7 @@ from harness.setup import (
 )
 from harness.validate import ConfigError, check_command_line, check_driven, validate_run_config
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
-from identify.derivatives import derive_states
+from identify.derivatives import States, derive_states
 from identify.derived import DERIVED
 from identify.estimators import estimate
 from identify.problem import Estimate, Problem, build_problem
@@ -84,10 +84,21 @@ def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any
 def _identify(
     cfg: DictConfig, data: Dataset, model: ParameterModel, base: BaseParameters, design: FourierDesign, prior: Prior
 ) -> tuple[Estimate, Problem]:
-    states = derive_states(data, cfg.identify.derivatives, **_derivative_options(cfg, design))
+    states = _sliding(cfg, model, derive_states(data, cfg.identify.derivatives, **_derivative_options(cfg, design)))
     problem = build_problem(data, states, model, base, prior=prior.theta)
     options = OmegaConf.to_container(cfg.estimator.options, resolve=True)
     return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
+
+
+def _sliding(cfg: DictConfig, model: ParameterModel, states: States) -> States:
+    """`states` trusting only the rows where every joint moves faster than `system.friction_min_speed` when the
+    model has Coulomb columns: a sticking joint's friction is anywhere within +-Fc, not the column's Fc sign(dq),
+    and such rows would bias Fc low (and show up in the validation as misfit the sliding model cannot have)."""
+    speed = cfg.system.get("friction_min_speed")
+    if speed is None or "coulomb_friction" not in model.effects:
+        return states
+    moving = np.all(np.abs(states.dq) > float(speed), axis=1)
+    return dataclasses.replace(states, valid=states.valid & moving)
 
 
 def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
@@ -133,7 +144,9 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         val_data = simulate_design(
             plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods), nominal=prior.plant
         )
-        val_states = derive_states(val_data, cfg.identify.derivatives, **_derivative_options(cfg, val_design))
+        val_states = _sliding(
+            cfg, model, derive_states(val_data, cfg.identify.derivatives, **_derivative_options(cfg, val_design))
+        )
         rows = val_states.valid
         val_pred = predict_torque(model, base, est.beta, val_states.q[rows], val_states.dq[rows], val_states.ddq[rows])
         val_rms = torque_rms(val_pred, val_data.tau[rows], plant.joint_names)

@@ -131,6 +131,7 @@ def simulate_design(
         rng=rng,
         nominal=nominal,
         bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
+        hard_friction=bool(cfg.system.get("hard_friction", False)),
     )
 
 

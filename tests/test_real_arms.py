@@ -41,10 +41,12 @@ def _urdf() -> Path | None:
 
 
 URDF = _urdf()
-# CI runs the fast variant on two arms that cover both actuator worlds: a 7-DoF position-servo arm (Panda)
-# and a 7-DoF servo arm without armature whose wrist needs a finer physics step (Gen3); `python -m bench arms`
-# runs every arm with the full defaults.
-CI_ARMS = [p for p in ARMS if p.stem in ("panda_nohand", "gen3")]
+# CI runs the fast variant on arms that cover both actuator worlds and both hard cases of the defaults: a 7-DoF
+# position-servo arm (Panda), a 7-DoF servo arm without armature whose wrist needs a finer physics step (Gen3),
+# a UR arm stretched out above the floor at its ranges' middle with MuJoCo collision geoms (UR5e: the clearance
+# binds the design) and a 6-DoF hobby arm with dry friction on light joints (SO-ARM100: Coulomb friction and
+# its sticking); `python -m bench arms` runs every arm with the full defaults.
+CI_ARMS = [p for p in ARMS if p.stem in ("panda_nohand", "gen3", "ur5e", "so_arm100")]
 # the shortened run: one optimisation start and short records (the bench runs the defaults)
 FAST = ["record=none", "excitation.options.starts=1", "system.periods=2", "validation.periods=1"]
 

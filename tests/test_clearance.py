@@ -1,0 +1,174 @@
+"""Clearance: the smooth distance the optimiser constrains, its gradient, and the open pose starts move about.
+
+Models are built here (two capsule links above the floor, a one-joint friction pendulum) so that the facts
+are known in closed form; the shared arms add MuJoCo collision geoms where ../shared/robots/ is present.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from dynamics.plant import load_plant
+from dynamics.regressor import ParameterModel
+from envs.simulate import _hard_friction
+from excitation.designs import default_design, grid, random_design
+from excitation.limits import limits_for
+from excitation.optimise import _open_pose, position_limit_ratios
+from excitation.registry import design_excitation
+
+ROBOTS = Path(__file__).resolve().parents[2] / "shared" / "robots"
+
+# a planar 3-link arm on the floor: link a up from the base, links b and c fold back towards it
+_ARM = """
+<mujoco model="fold3">
+  <compiler angle="radian"/>
+  <worldbody>
+    <body name="a" pos="0 0 0.1">
+      <joint name="j1" axis="0 0 1" range="-3 3"/>
+      <geom type="capsule" fromto="0 0 0 0 0 0.4" size="0.03" mass="1"/>
+      <body name="b" pos="0 0 0.4">
+        <joint name="j2" axis="0 1 0" range="-2.8 2.8"/>
+        <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>
+        <body name="c" pos="0.4 0 0">
+          <joint name="j3" axis="0 1 0" range="-2.8 2.8"/>
+          <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="j1" ctrlrange="-50 50"/><motor joint="j2" ctrlrange="-50 50"/><motor joint="j3" ctrlrange="-50 50"/>
+  </actuator>
+</mujoco>
+"""
+
+
+@pytest.fixture
+def arm(tmp_path: Path):
+    path = tmp_path / "fold3.xml"
+    path.write_text(_ARM)
+    plant = load_plant(path)
+    return plant, limits_for(plant, velocity=1.0, acceleration=5.0, clearance_m=0.02)
+
+
+def _fd_gradient(clearance, q: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    out = np.zeros_like(q)
+    for j in range(q.shape[1]):
+        e = np.zeros(q.shape[1])
+        e[j] = eps
+        out[:, j] = (clearance.smooth_distance(q + e)[0] - clearance.smooth_distance(q - e)[0]) / (2 * eps)
+    return out
+
+
+def _check_smooth_distance(clearance, q: np.ndarray) -> None:
+    d, g = clearance.smooth_distance(q)
+    hard = np.array([clearance.min_distance(p[None]) for p in q])
+    count = len(clearance.pairs) + len(clearance.floor)
+    assert np.all(d <= hard + 1e-12)  # a lower bound: a constraint on it is conservative
+    assert np.all(hard - d <= 0.005 * np.log(count) + 1e-12)  # and at most T log(count) below
+    fd = _fd_gradient(clearance, q)
+    scale = np.maximum(np.abs(fd).max(axis=1, keepdims=True), 1e-3)
+    assert np.max(np.abs(g - fd) / scale) < 1e-3
+
+
+def test_smooth_distance_is_a_tight_lower_bound_with_its_gradient_on_capsules_and_the_floor(arm) -> None:
+    plant, limits = arm
+    clearance = limits.clearance
+    assert clearance.pairs and clearance.floor  # link c against link a, links b and c against the floor
+    q = np.random.default_rng(0).uniform(limits.q_min, limits.q_max, size=(40, plant.nv))
+    _check_smooth_distance(clearance, q)
+    # folded down to the floor: link c's tip at z = 0.5 - 0.4 = 0.1 m less its radius, nothing nearer
+    d, _ = clearance.smooth_distance(np.array([[0.0, 0.0, np.pi / 2]]))
+    assert d[0] == pytest.approx(0.1 - 0.03, abs=0.005 * np.log(len(clearance.pairs) + len(clearance.floor)))
+
+
+@pytest.mark.skipif(not (ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
+def test_smooth_distance_gradient_through_mujoco_collision_geoms() -> None:
+    plant = load_plant(ROBOTS / "ur5e.xml")
+    limits = limits_for(plant, velocity=1.5, acceleration=8.0, clearance_m=0.02)
+    assert any(
+        min(limits.clearance.shapes[i].geom, limits.clearance.shapes[j].geom) >= 0 for i, j in limits.clearance.pairs
+    )
+    q = np.random.default_rng(1).uniform(limits.q_min, limits.q_max, size=(30, plant.nv))
+    _check_smooth_distance(limits.clearance, q)
+
+
+def test_open_pose_moves_a_stretched_arm_away_from_the_floor(arm) -> None:
+    _, limits = arm
+    stretched = np.array([0.0, 1.45, 0.0])  # links b and c pointing down-out, tip 2.5 cm above the floor
+    before = limits.clearance.min_distance(stretched[None])
+    opened = _open_pose(limits.clearance, limits, stretched)
+    assert np.all(opened >= limits.q_min) and np.all(opened <= limits.q_max)
+    assert limits.clearance.min_distance(opened[None]) > before + 0.1
+
+
+_PENDULUM = """
+<mujoco model="light_wrist">
+  <worldbody>
+    <body>
+      <joint name="j" axis="0 0 1" frictionloss="0.5"/>
+      <geom type="sphere" size="0.02" pos="0.05 0 0" mass="0.2" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_hard_friction_holds_a_joint_driven_at_its_friction_in_steady_sliding_where_the_default_gives() -> None:
+    """Driven by exactly Fc at speed v, Coulomb friction balances the drive (no acceleration). MuJoCo's default
+    soft constraint gives way on a light joint (its friction stays under Fc below v* ~ 1 rad/s here); the
+    hard setting holds it."""
+    m = mujoco.MjModel.from_xml_path(str(_write(_PENDULUM)))
+    d = mujoco.MjData(m)
+    fc = 0.5
+
+    def friction_at(model: mujoco.MjModel, speed: float) -> float:
+        d.qpos[:], d.qvel[:] = 0.0, speed
+        d.qfrc_applied[:] = fc * np.sign(speed)
+        mujoco.mj_forward(model, d)
+        return float(d.qfrc_constraint[0])
+
+    speed = 0.05  # rad/s, a slow stretch of a light (5e-4 kg m^2) joint
+    assert abs(friction_at(m, speed)) < 0.95 * fc  # the default soft constraint gives way
+    hard = _hard_friction(m)
+    assert friction_at(hard, speed) == pytest.approx(-fc, rel=1e-3)  # Coulomb: -Fc sign(v)
+    assert friction_at(hard, -speed) == pytest.approx(fc, rel=1e-3)
+
+
+def _write(text: str) -> Path:
+    path = Path(tempfile.mkdtemp()) / "model.xml"
+    path.write_text(text)
+    return path
+
+
+def test_random_and_default_designs_keep_the_clearance_that_their_plain_scaling_breaks(arm) -> None:
+    plant, _ = arm
+    limits = limits_for(plant, velocity=3.0, acceleration=10.0, clearance_m=0.02)  # swings that fold the arm
+    model = ParameterModel(plant)
+    t = grid(default_design(plant, limits, harmonics=3, base_freq_hz=0.1), 4000)
+    for name in ("random", "default"):
+        plain = (random_design if name == "random" else default_design)(
+            plant,
+            limits,
+            harmonics=3,
+            base_freq_hz=0.1,
+            **({"rng": np.random.default_rng(3)} if name == "random" else {}),
+        )
+        assert limits.clearance.min_distance(plain.evaluate(t)[0]) < 0.02  # scaled to q, dq, ddq, tau only
+        safe = design_excitation(
+            name,
+            plant,
+            limits,
+            model=model,
+            harmonics=3,
+            base_freq_hz=0.1,
+            torque_driven=False,
+            rng=np.random.default_rng(3),
+        )
+        assert limits.clearance.min_distance(safe.evaluate(t)[0]) >= 0.02
+        assert max(position_limit_ratios(plant, safe, limits, t).values()) <= 1.0
