@@ -80,12 +80,11 @@ def energy(problem: Problem, *, window_s: float = 0.1) -> Estimate:
     # the window residuals are sums of the energy balance's per-sample increments: the score of window i,
     # A_i e_i, is the sum over its samples of A_i dr_k. The HAC over those samples reads the noise's own
     # correlation (tens of samples) from thousands of increments instead of a few hundred window sums
-    # (whose long-run variance estimate varies by 20-30 % from record to record); the fit absorbs r of
-    # at most `windows` independent equations
+    # (whose long-run variance estimate varied by 20-30 % from record to record)
     balance = work - (H + lost) @ beta
     increments = np.diff(balance[edges[0] : edges[-1] + 1])
     window_of = np.arange(len(increments)) // step
-    cov, info = sandwich(np.linalg.inv(A.T @ A), A[window_of] * increments[:, None], max_independent=len(y))
+    cov, info = sandwich(np.linalg.inv(A.T @ A), A[window_of] * increments[:, None])
     diagnostics = {
         "window_s": window_s,
         "windows": len(y),
