@@ -465,10 +465,12 @@ def main(*, runs_scale: float | None = None, workers: int | None = None) -> dict
     wall = time.perf_counter() - start
     machine = f"{platform.processor() or platform.machine()}, {workers} worker processes"
     checks = (_checks(exact, rows) if "crlb" in parts else {}) | _coverage_checks(coverage)
+    command = f"BENCH_RUNS_SCALE={scale:g} BENCH_ESTIMATORS_PARTS={','.join(sorted(parts))} python -m bench estimators"
     report = {
         "machine": machine,
         "wall_time_s": wall,
         "runs_scale": scale,
+        "command": command,
         "parts": sorted(parts),
         "exact_regressor_ols": exact,
         "results": rows,
@@ -477,7 +479,11 @@ def main(*, runs_scale: float | None = None, workers: int | None = None) -> dict
     report["acceptance"] = checks
     stem = "estimators" if parts == {"crlb", "coverage"} else f"estimators_{'_'.join(sorted(parts))}"
     (HERE / f"{stem}.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
-    md = _markdown(exact, rows, machine, wall) if "crlb" in parts else f"# Estimators\n\n{machine}, {wall:.0f} s.\n"
+    md = (
+        _markdown(exact, rows, machine, wall)
+        if "crlb" in parts
+        else f"# Estimators\n\n`{command}` on {machine}, {wall:.0f} s.\n"
+    )
     md += "\n".join(_coverage_markdown(coverage)) + "\n" if coverage else ""
     md += "\n## Acceptance\n\n" + "\n".join(f"- {k}: {'pass' if v else 'FAIL'}" for k, v in checks.items())
     (HERE / f"{stem}.md").write_text(md + "\n")
