@@ -261,7 +261,8 @@ def crlb(c: CoverageCase, rows: np.ndarray) -> np.ndarray:
 def coverage_summary(c: CoverageCase, name: str, run: dict[str, Any]) -> dict[str, Any]:
     """Pooled statistics of one estimator's z-scores over the seeds where it reported a std.
 
-    std(z) is the RMS of z about 0 (a bias counts against it), pooled over seeds and base parameters.
+    std(z) is the RMS of z about 0 (a bias counts against it), pooled over seeds and base parameters;
+    `std_z_90` is its 90 % interval with the seeds resampled (None with one seed).
     """
     z, err = run["z"], run["err"]
     bound = crlb(c, run["rows"])
@@ -269,6 +270,12 @@ def coverage_summary(c: CoverageCase, name: str, run: dict[str, Any]) -> dict[st
     reported = np.all(np.isfinite(z), axis=1)
     zr = z[reported]
     some = bool(np.any(reported))
+    band = None
+    if some and len(zr) > 1:
+        # the seeds resampled with replacement (a seed's parameters stay together: they share its noise)
+        picks = np.random.default_rng(0).integers(0, len(zr), size=(2000, len(zr)))
+        boot = np.sqrt(np.mean(zr[picks] ** 2, axis=(1, 2)))
+        band = [float(np.quantile(boot, 0.05)), float(np.quantile(boot, 0.95))]
     return {
         "system": c.name,
         "estimator": name,
@@ -276,6 +283,7 @@ def coverage_summary(c: CoverageCase, name: str, run: dict[str, Any]) -> dict[st
         "parameters": int(z.shape[1]),
         "reported_fraction": float(np.mean(reported)),
         "std_z": float(np.sqrt(np.mean(zr**2))) if some else None,
+        "std_z_90": band,
         "mean_z": float(np.mean(zr)) if some else None,
         "max_abs_z": float(np.max(np.abs(zr))) if some else None,
         "frac_abs_z_gt_3": float(np.mean(np.abs(zr) > 3.0)) if some else None,

@@ -248,9 +248,17 @@ def _exact_ols(system: str, runs: int) -> dict[str, Any]:
 
 COVERAGE_SYSTEMS = ("pendulum", "two_link", "arm3", ARM7)
 COVERAGE_ESTIMATORS = ("ols", "wls", "iv", "filtered", "rls", "gradient", "energy", "physical")
-COVERAGE_SEEDS = {"pendulum": 40, "two_link": 30, "arm3": 20, ARM7: 10}
-COVERAGE_SLOW_SEEDS = {"pendulum": 20, "two_link": 12, "arm3": 8, ARM7: 4}  # iv, rls, gradient, physical
-_COVERAGE_SLOW = ("iv", "rls", "gradient", "physical")
+# seeds per system: std(z) pooled over k seeds scatters by about 0.1 at k = 15 on the two-link arm (its
+# disjoint 15-seed blocks ranged 0.85-1.26 around 1.02 over 300 seeds), so the cheap systems get many
+COVERAGE_SEEDS = {"pendulum": 200, "two_link": 100, "arm3": 20, ARM7: 10}
+# iv, rls, physical: the same seeds as the fast estimators where affordable (the seed set's luck is shared:
+# ols on the pendulum's first 60 seeds has std(z) 1.18, on its 200 1.08)
+COVERAGE_SLOW_SEEDS = {"pendulum": 200, "two_link": 100, "arm3": 20, ARM7: 6}
+COVERAGE_GRADIENT_SEEDS = {"pendulum": 10, "two_link": 6, "arm3": 4, ARM7: 3}  # its std is mostly withheld
+_COVERAGE_SLOW = ("iv", "rls", "physical")
+# measured seconds per run (bench/estimators_coverage.md), to start the longest tasks first
+_COVERAGE_COST = {"pendulum": 1.0, "two_link": 3.0, "arm3": 8.0, ARM7: 50.0}
+_COVERAGE_COST_FACTOR = {"physical": 3.0, "gradient": 2.0, "iv": 1.5}
 _COVERAGE_CASES: dict[str, CoverageCase] = {}
 
 
@@ -271,14 +279,25 @@ def _coverage(scale: float, pool: ProcessPoolExecutor) -> list[dict[str, Any]]:
     tasks = []
     for system in systems:
         for name in COVERAGE_ESTIMATORS:
-            n = COVERAGE_SLOW_SEEDS[system] if name in _COVERAGE_SLOW else COVERAGE_SEEDS[system]
-            tasks.append((system, name, list(range(max(int(n * scale), 3)))))
+            table = (
+                COVERAGE_GRADIENT_SEEDS
+                if name == "gradient"
+                else COVERAGE_SLOW_SEEDS
+                if name in _COVERAGE_SLOW
+                else COVERAGE_SEEDS
+            )
+            tasks.append((system, name, list(range(max(int(table[system] * scale), 3)))))
+
+    def cost(task: tuple[str, str, list[int]]) -> float:
+        return _COVERAGE_COST[task[0]] * _COVERAGE_COST_FACTOR.get(task[1], 1.0) * len(task[2])
+
+    order = sorted(range(len(tasks)), key=lambda i: -cost(tasks[i]))  # longest first: the two workers finish together
     progress = printer("bench estimators (coverage)", every_s=5.0)
-    out = []
-    for i, row in enumerate(pool.map(_coverage_task, tasks)):
-        out.append(row)
-        progress((i + 1) / len(tasks), f"{i + 1}/{len(tasks)} coverage tasks")
-    return out
+    out: dict[int, dict[str, Any]] = {}
+    for done, (i, row) in enumerate(zip(order, pool.map(_coverage_task, [tasks[i] for i in order]), strict=True)):
+        out[i] = row
+        progress((done + 1) / len(tasks), f"{done + 1}/{len(tasks)} coverage tasks")
+    return [out[i] for i in range(len(tasks))]
 
 
 def _coverage_markdown(rows: list[dict[str, Any]]) -> list[str]:
@@ -287,7 +306,8 @@ def _coverage_markdown(rows: list[dict[str, Any]]) -> list[str]:
         "## Coverage of the reported std",
         "",
         "z = (estimate - truth) / std over independent noise seeds, pooled over seeds and base parameters; "
-        "std(z) is the RMS of z about 0 (a bias counts). Honest: std(z) in [0.8, 1.25] and at most 2 % of "
+        "std(z) is the RMS of z about 0 (a bias counts); its 90 % interval resamples the seeds (the spread a "
+        "different set of seeds would give). Honest: std(z) in [0.8, 1.25] and at most 2 % of "
         "|z| > 3. Data (bench/_coverage.py): the system's random design, simulated under the *prior* model's "
         "feedforward (truth perturbed: masses +-20 %, CoM +-1 cm, inertias +-30 %, friction unknown); torque "
         "noise band-limited by a 10 Hz driver filter with a different std on each joint (0.5x to 2x); "
@@ -296,9 +316,9 @@ def _coverage_markdown(rows: list[dict[str, Any]]) -> list[str]:
         "uses the white-noise bound of the same per-joint variance (band-limited noise carries less "
         "information at the excitation's frequencies, so no estimator reaches 1 here).",
         "",
-        "| system | estimator | seeds | reports std | std(z) | mean z | frac abs z > 3 | max abs z | RMS err [CRLB] "
-        "| HAC lag / tau [samples] | time/run [s] |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| system | estimator | seeds | reports std | std(z) | std(z) 90 % | mean z | frac abs z > 3 | max abs z "
+        "| RMS err [CRLB] | HAC lag / tau [samples] | time/run [s] |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
 
     def f(v: Any, fmt: str) -> str:
@@ -307,9 +327,11 @@ def _coverage_markdown(rows: list[dict[str, Any]]) -> list[str]:
     for r in rows:
         cov = r["covariance"]
         lag = f"{cov.get('lag', '-')} / {f(cov.get('tau'), '.0f')}" if cov else "-"
+        band = r.get("std_z_90")
+        interval = f"{band[0]:.2f}-{band[1]:.2f}" if band else "-"
         lines.append(
             f"| {r['system']} | {r['estimator']} | {r['seeds']} | {r['reported_fraction']:.0%} "
-            f"| {f(r['std_z'], '.3f')} "
+            f"| {f(r['std_z'], '.3f')} | {interval} "
             f"| {f(r['mean_z'], '.2f')} | {f(r['frac_abs_z_gt_3'], '.3f')} | {f(r['max_abs_z'], '.2f')} "
             f"| {r['rms_error_crlb_units']:.2f} | {lag} | {r['wall_time_s']:.2f} |"
         )
@@ -445,10 +467,12 @@ def main(*, runs_scale: float | None = None, workers: int | None = None) -> dict
     wall = time.perf_counter() - start
     machine = f"{platform.processor() or platform.machine()}, {workers} worker processes"
     checks = (_checks(exact, rows) if "crlb" in parts else {}) | _coverage_checks(coverage)
+    command = f"BENCH_RUNS_SCALE={scale:g} BENCH_ESTIMATORS_PARTS={','.join(sorted(parts))} python -m bench estimators"
     report = {
         "machine": machine,
         "wall_time_s": wall,
         "runs_scale": scale,
+        "command": command,
         "parts": sorted(parts),
         "exact_regressor_ols": exact,
         "results": rows,
@@ -457,7 +481,11 @@ def main(*, runs_scale: float | None = None, workers: int | None = None) -> dict
     report["acceptance"] = checks
     stem = "estimators" if parts == {"crlb", "coverage"} else f"estimators_{'_'.join(sorted(parts))}"
     (HERE / f"{stem}.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
-    md = _markdown(exact, rows, machine, wall) if "crlb" in parts else f"# Estimators\n\n{machine}, {wall:.0f} s.\n"
+    md = (
+        _markdown(exact, rows, machine, wall)
+        if "crlb" in parts
+        else f"# Estimators\n\n`{command}` on {machine}, {wall:.0f} s.\n"
+    )
     md += "\n".join(_coverage_markdown(coverage)) + "\n" if coverage else ""
     md += "\n## Acceptance\n\n" + "\n".join(f"- {k}: {'pass' if v else 'FAIL'}" for k, v in checks.items())
     (HERE / f"{stem}.md").write_text(md + "\n")

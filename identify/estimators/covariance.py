@@ -6,12 +6,14 @@ derived from filtered positions put errors into the regressor that are correlate
 sigma^2 (W'W)^-1 assumes none of that and reports stds several times too small.
 
 Every linear estimator here solves a moment condition sum_k Z_k' e_k(beta) = 0 (Z = W for least squares, the
-instruments for IV, psi for the filtered model, window rows for the energy model). Its covariance is the
+instruments for IV, psi for the filtered model, window rows times the energy balance's per-sample increments
+for the energy model). Its covariance is the
 sandwich B^-1 M B^-T with B the Jacobian of the moment condition (the "bread") and M the long-run variance of
 the per-sample score g_k = Z_k' e_k (the "meat"). M is estimated by heteroscedasticity and autocorrelation
-consistent (HAC) estimation with Newey and West's Bartlett kernel,
+consistent (HAC) estimation with Parzen's kernel k,
 
-    M = Gamma_0 + sum_{l=1}^{L} (1 - l / (L + 1)) (Gamma_l + Gamma_l'),   Gamma_l = sum_k g_k g_{k-l}',
+    M = Gamma_0 + sum_{l=1}^{L} k(l / (L + 1)) (Gamma_l + Gamma_l'),   Gamma_l = sum_k g_k g_{k-l}',
+    k(x) = 1 - 6 x^2 + 6 |x|^3 (|x| <= 1/2),  2 (1 - |x|)^3 (1/2 < |x| <= 1),
 
 with a data-driven lag L read from the score's measured autocorrelation: L is Sokal's window, the smallest
 M >= 5 tau(M), tau(M) = 1 + 2 sum_{l<=M} rho(l) the integrated autocorrelation time, for the slowest score
@@ -21,6 +23,12 @@ for comparison: band-limited noise is smooth, its lag-1 correlation is near 1 al
 tens of samples, and the AR(1) reading gives lags several times too long and stds about 1.5 times as
 noisy.) Summing the score over the joints of a sample first makes the meat account for noise shared
 between joints at one instant.
+
+Parzen, not Newey and West's Bartlett kernel 1 - |x|: at Sokal's window on band-limited noise Bartlett's sum
+falls 5 % short of the long-run variance (its weights start falling at the first lag) where Parzen's is
+within 1 %, and Parzen's estimate is also less noisy at the same lag (int k^2 0.54 against 0.67). Measured
+over 150 noise seeds on the coverage study's two-link data, the pooled std(z) of `ols` went from 1.13 to
+1.06 with this change (`bench/_coverage.py`).
 """
 
 from __future__ import annotations
@@ -33,7 +41,7 @@ from scipy import signal
 
 __all__ = ["HAC_METHOD", "CovarianceInfo", "andrews_lag", "autocorrelation_window", "hac_meat", "sandwich", "score"]
 
-HAC_METHOD = "hac-bartlett-acf-window"
+HAC_METHOD = "hac-parzen-acf-window"
 
 
 @dataclass(frozen=True)
@@ -41,10 +49,13 @@ class CovarianceInfo:
     """How a covariance was computed (estimators put `to_dict()` in their diagnostics as "covariance").
 
     Attributes:
-        method: e.g. "hac-bartlett-andrews", or "none" where the estimator reports no covariance.
+        method: e.g. "hac-parzen-acf-window", or "none" where the estimator reports no covariance.
         lag: the HAC lag L [samples of the score] (0 = no autocorrelation allowed for).
         samples: number of score samples (time steps or windows).
-        tau: integrated autocorrelation time of the slowest score component [samples] (1: white).
+        tau: integrated autocorrelation time of the slowest score component [samples] (1: white); it sets
+            the lag.
+        inflation: the parameters' mean variance ratio, HAC over the white-noise sandwich (1: white); n /
+            inflation is the effective sample count of the degrees-of-freedom correction.
         reason: why there is no covariance (method "none"), else "".
     """
 
@@ -52,6 +63,7 @@ class CovarianceInfo:
     lag: int
     samples: int
     tau: float = 1.0
+    inflation: float = 1.0
     reason: str = ""
 
     def to_dict(self) -> dict[str, Any]:
@@ -139,13 +151,16 @@ def _parzen(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.5, 1.0 - 6.0 * x**2 + 6.0 * x**3, np.where(x <= 1.0, 2.0 * (1.0 - x) ** 3, 0.0))
 
 
-def hac_meat(g: np.ndarray, lag: int, *, kernel: str = "bartlett") -> np.ndarray:
+def hac_meat(g: np.ndarray, lag: int, *, kernel: str = "parzen") -> np.ndarray:
     """(r, r) kernel-weighted long-run variance sum of the score series g (n, r), truncated at `lag`.
 
     sum_{k,m} w(k - m) g_k g_m' = G' (w * G), the convolution done by FFT (n r log n, not n r^2 lag).
 
     Args:
-        kernel: "bartlett" (Newey-West: the default, the smaller variance at the window's lag) or "parzen".
+        kernel: "parzen" (the default) or "bartlett" (Newey-West). At the same lag Parzen's weights stay near
+            1 for longer and fall off smoothly: on band-limited noise at Sokal's window its sum is within 1 %
+            of the long-run variance where Bartlett's falls 5 % short, and its own noise is lower
+            (int k^2 = 0.54 against 0.67).
     """
     if kernel not in ("bartlett", "parzen"):
         raise ValueError(f"unknown HAC kernel {kernel!r}; valid choices: bartlett, parzen")
@@ -171,21 +186,30 @@ def sandwich(bread_inv: np.ndarray, g: np.ndarray, *, lag: int | None = None) ->
 
     Returns:
         The (r, r) covariance and how it was computed. The fitted residuals miss the r directions the fit
-        absorbed; with a score correlated over tau samples that is r of only n / tau effectively independent
-        samples, so the covariance is scaled by n_eff / (n_eff - r), n_eff = n / tau (measured on a 7-DoF
-        arm with 55 base parameters and band-limited noise, this takes the HAC std from 0.93 to 0.99 of the
-        exact one); and a Bartlett sum over a window that is a fraction b = L / n of the record falls short
-        by 1 - b + b^2 / 3 (fixed-b asymptotics), which is divided out.
+        absorbed; with residuals correlated so that the estimate's variance is `inflation` times the
+        white-noise sandwich's, that is r of only n_eff = n / inflation effectively independent samples, so
+        the covariance is scaled by n_eff / (n_eff - r) (measured on a 7-DoF arm with 55 base parameters and
+        band-limited noise, a correction of this kind takes the HAC std from 0.93 to 0.99 of the exact
+        one); and a kernel sum over a window that is a fraction b = L / n of the record falls short
+        by 1 - 0.75 b + 0.175 b^2 for Parzen (fixed-b asymptotics), which is divided out.
     """
     n, r = g.shape
     if lag is None:
         chosen, tau = autocorrelation_window(g)
     else:
         chosen, tau = int(lag), 1.0
-    n_eff = n / tau
+    raw = bread_inv @ hac_meat(g, chosen, kernel="parzen") @ bread_inv.T
+    # the estimate's own variance inflation by the correlation (HAC over the white-noise sandwich, averaged
+    # over the parameters): how many samples make one independent one as far as the estimate is concerned.
+    # (The slowest score component's tau, which sets the window, overstates it where a few of many
+    # components are slow: on a 7-DoF arm's filtered model it made the std 25 % too large.)
+    white = np.diag(bread_inv @ (g.T @ g) @ bread_inv.T)
+    inflation = float(np.mean(np.diag(raw)[white > 0] / white[white > 0])) if np.any(white > 0) else 1.0
+    n_eff = n / max(inflation, 1.0)
     b = chosen / max(n, 1)
-    # the r fitted directions, and the Bartlett sum's own shortfall over a window that is a fraction b of the
-    # record (fixed-b: E[M] = (1 - b + b^2 / 3) M, Kiefer and Vogelsang 2005)
-    dof = n_eff / max(n_eff - r, 1.0) / (1.0 - b + b**2 / 3.0)
-    cov = bread_inv @ hac_meat(g, chosen) @ bread_inv.T * dof
-    return 0.5 * (cov + cov.T), CovarianceInfo(HAC_METHOD, chosen, n, float(tau))
+    # the r fitted directions, and the kernel sum's own shortfall over a window that is a fraction b of the
+    # record (fixed-b, Kiefer and Vogelsang 2005: E[M] = (1 - b int k + b^2 int |x| k) M, for Parzen
+    # 1 - 0.75 b + 0.175 b^2)
+    dof = n_eff / max(n_eff - r, 1.0) / (1.0 - 0.75 * b + 0.175 * b**2)
+    cov = raw * dof
+    return 0.5 * (cov + cov.T), CovarianceInfo(HAC_METHOD, chosen, n, float(tau), inflation)

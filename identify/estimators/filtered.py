@@ -3,7 +3,7 @@
 Both sides of the dynamics are filtered by omega / (s + omega) (see `signals.filtered_model`), which needs
 joint angles and speeds but never the acceleration; the filtered equations are then solved in one batch.
 The filtered noise is coloured (correlated over about 1/omega), so the covariance is the HAC sandwich of
-`covariance.sandwich`, whose lag follows the residuals' measured autocorrelation (Andrews' rule).
+`covariance.sandwich`, whose lag follows the residuals' measured autocorrelation.
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ def filtered_cov(psi: np.ndarray, resid: np.ndarray) -> tuple[np.ndarray, dict]:
         resid: (n, nv) residuals at the estimate.
 
     Returns:
-        (r, r) (psi' psi)^-1 M (psi' psi)^-1, M the Bartlett-kernel long-run variance of psi' resid with
-        Andrews' lag (the filter makes the residuals correlated over about 1/omega), and how it was computed.
+        (r, r) (psi' psi)^-1 M (psi' psi)^-1, M the HAC long-run variance of psi' resid with the lag read
+        from its autocorrelation (the filter makes the residuals correlated over about 1/omega), and how it
+        was computed.
     """
     A = psi.reshape(-1, psi.shape[2])
     cov, info = sandwich(np.linalg.inv(A.T @ A), score(psi, resid))
