@@ -45,13 +45,25 @@ def _kb(field):
         if line.startswith(field + ":"):
             return int(line.split()[1])
 _t = [0.0, 0]
+_status = 0
 def start():
     open("/proc/self/clear_refs", "w").write("5")
     _t[0] = time.perf_counter(); _t[1] = _kb("VmRSS")
 """
 _EPILOGUE = """
 import json
-print(json.dumps({"s": time.perf_counter() - _t[0], "peak_mb": (_kb("VmHWM") - _t[1]) / 1024}))
+print(json.dumps({"s": time.perf_counter() - _t[0], "peak_mb": (_kb("VmHWM") - _t[1]) / 1024,
+                  "total_mb": _kb("VmHWM") / 1024, "status": _status}))
+"""
+_DIAGNOSE = """
+import harness.diagnose, identify.diagnose, dynamics.plant, scipy.signal, mujoco.rollout
+dynamics.plant.load_plant("two_link")
+sys.argv = ["sysid-diagnose", "system=two_link", "data.path=" + P, *{args!r}]
+start()
+try:
+    harness.diagnose.main()
+except SystemExit as e:
+    _status = e.code or 0
 """
 
 
@@ -77,16 +89,36 @@ def write_file(path: Path, rows: int) -> None:
             np.savetxt(f, block, delimiter=",", fmt="%.10g")
 
 
+def _stage(code: str, path: Path) -> subprocess.CompletedProcess:
+    """Run `code` (which calls `start()` where the measured stage begins) in a fresh process; its last stdout
+    line is the stage's {s, peak_mb, total_mb, status}."""
+    extra = [str(REPO), os.environ.get("SYSID_BENCH_POLARS_PATH", "")]
+    full = _PRELUDE.format(extra=extra, path=str(path)) + code + _EPILOGUE
+    return subprocess.run([sys.executable, "-c", full], cwd=REPO, capture_output=True, text=True, check=False)
+
+
 def measure(reader: str, path: Path) -> dict | None:
     """Time [s] and peak memory above the process's baseline [MB] of one reader, in a fresh process."""
-    extra = [str(REPO), os.environ.get("SYSID_BENCH_POLARS_PATH", "")]
-    code = _PRELUDE.format(extra=extra, path=str(path)) + _READERS[reader] + _EPILOGUE
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=False)
+    proc = _stage(_READERS[reader], path)
     if proc.returncode != 0:
         if "No module named" in proc.stderr:
             return None
         raise RuntimeError(f"{reader}: {proc.stderr[-2000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def measure_diagnosis(path: Path, *args: str) -> tuple[dict, str]:
+    """A whole `sysid-diagnose system=two_link data.path=<path> <args>` in a fresh process: its time [s], peak
+    memory above the loaded libraries (`peak_mb`) and in all (`total_mb`) [MB], exit status, and its stderr.
+
+    Raises:
+        RuntimeError: the process died before it could report.
+    """
+    proc = _stage(_DIAGNOSE.format(args=list(args)), path)
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"sysid-diagnose of {path}: status {proc.returncode}: {proc.stderr[-2000:]}")
+    return json.loads(lines[-1]), proc.stderr
 
 
 def main() -> None:

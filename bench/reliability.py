@@ -253,35 +253,20 @@ def _report_after_failed_sweep(d: Path, base: Path) -> tuple[bool, str]:
 def _large_file(d: Path, base: Path) -> tuple[bool, str]:
     """sysid-diagnose on a 3 M-row file: the peak memory above the loaded libraries within 2x the file, and
     progress lines on stderr."""
-    from bench.large_file import write_file
+    from bench.large_file import measure_diagnosis, write_file
 
     path = d / "large.csv"
     write_file(path, 3_000_000)
-    script = (
-        "import sys, time\n"
-        "import harness.diagnose, identify.diagnose, dynamics.plant, scipy.signal, mujoco.rollout\n"
-        "dynamics.plant.load_plant('two_link')\n"
-        "def kb(f):\n"
-        "    return next(int(ln.split()[1]) for ln in open('/proc/self/status') if ln.startswith(f + ':'))\n"
-        "open('/proc/self/clear_refs', 'w').write('5')\n"
-        "before, t0 = kb('VmRSS'), time.perf_counter()\n"
-        f"sys.argv = ['sysid-diagnose', 'system=two_link', 'data.path={path}', 'hydra.run.dir={d / 'out'}']\n"
-        "try:\n"
-        "    harness.diagnose.main()\n"
-        "except SystemExit as e:\n"
-        "    code = e.code\n"
-        "print('PEAK', (kb('VmHWM') - before) * 1024, kb('VmHWM') * 1024, time.perf_counter() - t0)\n"
-    )
-    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=900)
-    size = path.stat().st_size
-    if "PEAK" not in proc.stdout:
-        return False, f"status {proc.returncode}: {_last(proc.stderr)}"
-    grown, total, seconds = (float(v) for v in proc.stdout.split("PEAK")[-1].split())
-    progress = "states at the full rate" in proc.stderr
-    ok = proc.returncode == 0 and grown <= 2 * size and progress
+    try:
+        m, err = measure_diagnosis(path, f"hydra.run.dir={d / 'out'}")
+    except RuntimeError as e:
+        return False, str(e)[-300:]
+    size_mb = path.stat().st_size / 2**20
+    progress = "states at the full rate" in err
+    ok = m["status"] == 0 and m["peak_mb"] <= 2 * size_mb and progress
     return ok, (
-        f"{size / 2**20:.0f} MB file: peak {grown / 2**20:.0f} MB above the loaded libraries ({grown / size:.2f}x), "
-        f"{total / 2**20:.0f} MB in all, {seconds:.0f} s, progress lines {progress}"
+        f"{size_mb:.0f} MB file: peak {m['peak_mb']:.0f} MB above the loaded libraries "
+        f"({m['peak_mb'] / size_mb:.2f}x), {m['total_mb']:.0f} MB in all, {m['s']:.0f} s, progress lines {progress}"
     )
 
 

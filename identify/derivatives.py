@@ -360,7 +360,7 @@ def reduce_record(data: Dataset, method: str, factor: int, **options: Any) -> Da
     def thin(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
         """x (N,) or (N, m) filtered and thinned, a column at a time (the filter's copies are one column's)."""
         if x.ndim == 2:
-            return np.column_stack([thin(x[:, j], keep) for j in range(x.shape[1])]).reshape(len(keep), -1)
+            return np.column_stack([thin(x[:, j], keep) for j in range(x.shape[1])])
         return (x if sos is None else signal.sosfiltfilt(sos, x))[keep]
 
     if options.get("cutoff_hz") is None and method not in ("simulator", "given"):  # one cut-off for all joints
