@@ -25,6 +25,7 @@ import pinocchio as pin
 
 from dynamics.actuators import Actuation, actuation_of
 from dynamics.errors import ModelError
+from dynamics.friction import friction_parameters
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
 from dynamics.urdf import URDF_SUFFIXES, urdf_as_mjcf_file
@@ -98,6 +99,8 @@ class Plant:
             about the joint frame's origin [kg, kg m, kg m^2].
         armature, damping, frictionloss, stiffness, springref: (nv,) joint properties of the model
             [kg m^2, N m s/rad, N m, N m/rad, rad].
+        friction_speed, friction_lead: (nv,) ramp width [rad/s] and lead [s] of each joint's frictionloss
+            (`dynamics.friction.friction_parameters`: 0 where the friction is taken as ideal Coulomb).
         source: the file the user gave where it is not `path` itself (a URDF, compiled to the MJCF `path`).
     """
 
@@ -120,6 +123,8 @@ class Plant:
     frictionloss: np.ndarray
     stiffness: np.ndarray
     springref: np.ndarray
+    friction_speed: np.ndarray
+    friction_lead: np.ndarray
     source: Path | None = None
 
     @property
@@ -310,6 +315,7 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
     spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
     damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
     theta = np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])
+    friction_speed, friction_lead = friction_parameters(m)
     plant = Plant(
         name=path.stem,
         path=path,
@@ -330,6 +336,8 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
         frictionloss=m.dof_frictionloss.copy(),
         stiffness=m.jnt_stiffness * float(spring_on),
         springref=m.qpos_spring.copy(),
+        friction_speed=friction_speed,
+        friction_lead=friction_lead,
     )
     if check:
         check_against_mujoco(plant, np.random.default_rng(0))

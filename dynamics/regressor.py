@@ -5,7 +5,8 @@
 Effect columns (per joint j, only on the joint's own row):
     armature          Ia_j   ddq_j            (MJCF `armature`, kg m^2)
     viscous_friction  Fv_j   dq_j             (MJCF `damping`, N m s/rad)
-    coulomb_friction  Fc_j   sign(dq_j)       (MJCF `frictionloss`, N m)
+    coulomb_friction  Fc_j   shape(dq_j)      (MJCF `frictionloss`, N m; sign(dq_j), or the ramp the model
+                                              declares: `dynamics.friction.friction_shape`)
     joint_stiffness   K_j    q_j - springref_j (MJCF `stiffness`, N m/rad; about the model's spring rest angle)
     torque_offset     off_j  1                (sensor bias, N m; actuated joints only)
 """
@@ -17,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from dynamics.friction import friction_shape
 from dynamics.plant import Plant
 
 __all__ = ["EFFECT_COLUMNS", "ParameterModel", "rigid_body_regressor"]
@@ -104,7 +106,7 @@ class ParameterModel:
         signal = {
             "armature": ddq,
             "viscous_friction": dq,
-            "coulomb_friction": np.sign(dq),
+            "coulomb_friction": friction_shape(dq, ddq, self.plant.friction_speed, self.plant.friction_lead),
             "joint_stiffness": q - self.plant.springref,
             "torque_offset": None,
         }

@@ -1,13 +1,15 @@
 """The one torque model: the joint torque a plant needs along a motion, in closed form, with its derivatives.
 
     tau = RNEA(q, dq, ddq) (rigid body + armature, Pinocchio)  +  damping dq  +  stiffness (q - springref)
-          +  frictionloss sign(dq)
+          +  frictionloss shape(dq, ddq)
 
-This is MuJoCo's passive-force model with its constraint-based `frictionloss` replaced by the ideal Coulomb
-term it approximates: MuJoCo's friction force never exceeds `frictionloss` and reaches it once the joint
-slides (see `identify.diagnose.calibrate.frictionloss_mapping` for how close it comes), so the ideal term is
-the torque an actuator must be able to supply. Its derivative is taken as zero (sign(dq) is piecewise
-constant). Joint angles are in the model's own coordinates, so a joint `ref` is honoured.
+This is MuJoCo's passive-force model with its constraint-based `frictionloss` as the friction shape the model
+declares (`dynamics.friction`): the ramp sat((dq + lead ddq) / vt) MuJoCo's inverse dynamics applies where the
+joint's solver parameters say so (a calibrated MJCF), otherwise the ideal Coulomb term sign(dq) MuJoCo's soft
+constraint approximates: its force never exceeds `frictionloss` and reaches it once the joint slides (see
+`identify.diagnose.calibrate.frictionloss_mapping` for how close it comes), so the ideal term is the torque an
+actuator must be able to supply. Its derivative is taken as zero (piecewise constant, or a ramp narrower than
+any motion resolves). Joint angles are in the model's own coordinates, so a joint `ref` is honoured.
 
 Used by the excitation's torque limits, the limit check after simulation and the diagnosis alike.
 `inverse_dynamics` is MuJoCo's own `mj_inverse` (constraints included), for the simulated controller's
@@ -20,6 +22,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from dynamics.friction import friction_shape
 from dynamics.plant import Plant
 
 __all__ = ["inverse_dynamics", "joint_torque", "torque_jacobian_q"]
@@ -53,7 +56,7 @@ def joint_torque(
         D[0, k], D[1, k], D[2, k] = d_q, d_v, d_a  # copies: Pinocchio hands back views of `data`
     tau += plant.damping * dq + plant.stiffness * (q - plant.springref)
     if coulomb:
-        tau += plant.frictionloss * np.sign(dq)
+        tau += plant.frictionloss * friction_shape(dq, ddq, plant.friction_speed, plant.friction_lead)
     if D is not None:
         D[0] += np.diag(plant.stiffness)
         D[1] += np.diag(plant.damping)

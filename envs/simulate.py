@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from dynamics.errors import ModelError
+from dynamics.friction import friction_parameters
 from dynamics.plant import Plant
 from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
@@ -170,9 +171,10 @@ def _hard_friction(m: mujoco.MjModel) -> mujoco.MjModel:
     viscous damper, not as the Coulomb friction F sign(v) the model declares (and the identification's
     Coulomb column assumes). With the defaults (timeconst 0.02 s, d = 0.9) v* reaches 1 rad/s on a light
     wrist. The stiffest setting that is still stable, timeconst = 2 physics steps (MuJoCo's own lower clamp)
-    and impedance 0.999, brings v* below 1e-3 rad/s on every shared arm at no extra cost per step.
+    and impedance 0.999, brings v* below 1e-3 rad/s on every shared arm at no extra cost per step. A dof
+    whose friction is a declared ramp (`dynamics.friction`, as a calibrated MJCF writes it) keeps its own.
     """
-    dofs = m.dof_frictionloss > 0
+    dofs = (m.dof_frictionloss > 0) & (friction_parameters(m)[0] == 0)  # a declared ramp stays as written
     m.dof_solref[dofs] = [2.0 * m.opt.timestep, 1.0]
     m.dof_solimp[dofs, :2] = _FRICTION_IMPEDANCE
     return m

@@ -2,10 +2,15 @@
 
 Mapping (what each finding becomes in `<system>_calibrated.xml`):
     armature, viscous_friction     joint `armature`, `damping` (added to the nominal values)
-    coulomb_friction               joint `frictionloss` = the fitted Coulomb torque Fc (1:1). MuJoCo makes it a
-                                   soft constraint: the friction force saturates at Fc when sliding and is
-                                   smaller below a transition speed; `frictionloss_mapping` measures how close
-                                   it comes to Fc sign(dq) along the validation motion.
+    coulomb_friction               joint `frictionloss` = the fitted Coulomb torque Fc (1:1), with
+                                   `solreffriction` / `solimpfriction` that make MuJoCo's friction the ramp
+                                   Fc sat((dq + lead ddq) / vt) closest to Fc sign(dq) that the model's step
+                                   simulates stably (`dynamics.friction.ideal_friction_speed`); MuJoCo's
+                                   default parameters would turn it over at dq = -ddq / 105, well before a
+                                   reversal, over a ramp of metres per second on a light joint
+    smooth_coulomb_friction        the same with the fitted ramp width vt (and the lead stability asks for);
+                                   `frictionloss_mapping` measures how closely MuJoCo's inverse dynamics follows
+                                   the declared shape along the validation motion
     joint_stiffness                joint `stiffness`, `springref`
     payload, rigid_body            the bodies' `inertial` (mass, pos, fullinertia) from the corrected standard
                                    parameters
@@ -26,7 +31,6 @@ custom elements, named sysid_<effect>_<joint>, with their parameters (SI units),
 `mjcf_measured_torque` (and by anyone who adds them as a `qfrc_applied` in a simulation loop):
     cogging                        [n, a, b]: tau += a sin(n q) + b cos(n q) (n cycles per radian of q)
     stribeck_friction              [Fs, vs]: tau += Fs sign(dq) exp(-(dq / vs)^2)
-    smooth_coulomb_friction        [Fc, vt]: tau += Fc tanh(dq / vt)
     load_friction                  [mu]: tau += mu |tau_j| sign(dq_j), tau_j the joint's torque without it
     backlash                       [b]: the link angle is q - (b / 2) sign(dq) (lost motion b, in contact)
     joint_elasticity               [k]: the link angle is q - tau_j / k (motor-side encoder, compliant gear)
@@ -41,6 +45,7 @@ import mujoco
 import numpy as np
 from scipy import optimize
 
+from dynamics.friction import friction_shape, friction_solver, ideal_friction_speed
 from dynamics.inertia import (
     body_and_jacobian,
     is_consistent,
@@ -91,6 +96,8 @@ class Extension:
             folded into theta_delta and armature; kept to be reported).
         custom: effects with no MuJoCo attribute, as (effect, joint index, parameters) (see the module
             docstring for each effect's parameters).
+        friction_speed: (nv,) ramp width of each joint's friction where a smooth Coulomb shape was fitted
+            [rad/s]; 0: ideal Coulomb. `calibrated_xml` replaces it by the width it writes.
     """
 
     armature: np.ndarray
@@ -106,6 +113,7 @@ class Extension:
     rotor_coupling: np.ndarray = field(default_factory=lambda: np.zeros(0))
     notes: list[str] = field(default_factory=list)
     custom: list[tuple[str, int, tuple[float, ...]]] = field(default_factory=list)
+    friction_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def none(cls, plant: Plant) -> Extension:
@@ -122,6 +130,7 @@ class Extension:
             torque_gain=np.ones(n),
             delay_s=_zeros(n),
             rotor_coupling=_zeros(n),
+            friction_speed=_zeros(n),
         )
 
 
@@ -170,6 +179,10 @@ def extension_from_fit(
         if c.effect == "rotor_coupling":
             _add_rotor_coupling(plant, ext, j, float(full[0]))
             continue
+        if c.effect == "smooth_coulomb_friction":
+            ext.frictionloss[j] += full[0]
+            ext.friction_speed[j] = float(c.variant)
+            continue
         if c.effect == "joint_stiffness":
             k_total = plant.stiffness[j] + full[0]
             ext.stiffness[j] += full[0]
@@ -196,9 +209,10 @@ CUSTOM_EFFECTS = (
     "cogging",
     "joint_elasticity",
     "load_friction",
-    "smooth_coulomb_friction",
     "stribeck_friction",
 )
+# custom numerics of earlier versions that a MuJoCo attribute now holds: a file that has one is refused
+RETIRED_EFFECTS = {"smooth_coulomb_friction": "a frictionloss ramp (re-run the diagnosis to rewrite the file)"}
 
 
 def _custom_parameters(effect: str, variant: str, coef: np.ndarray) -> tuple[float, ...] | None:
@@ -208,7 +222,7 @@ def _custom_parameters(effect: str, variant: str, coef: np.ndarray) -> tuple[flo
         return None
     if effect == "cogging":
         return (float(variant), float(coef[0]), float(coef[1]))
-    if effect in ("stribeck_friction", "smooth_coulomb_friction"):
+    if effect == "stribeck_friction":
         return (float(coef[0]), float(variant))
     if effect == "backlash":
         return (2.0 * float(coef[0]),)
@@ -244,8 +258,6 @@ def custom_torque(
             tau[:, j] += p[1] * np.sin(p[0] * q[:, j]) + p[2] * np.cos(p[0] * q[:, j])
         elif effect == "stribeck_friction":
             tau[:, j] += p[0] * np.sign(dq[:, j]) * np.exp(-((dq[:, j] / p[1]) ** 2))
-        elif effect == "smooth_coulomb_friction":
-            tau[:, j] += p[0] * np.tanh(dq[:, j] / p[1])
         elif effect == "load_friction":
             tau[:, j] += p[0] * np.abs(base[:, j]) * np.sign(dq[:, j])
     return tau
@@ -438,10 +450,32 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         numeric = spec.add_numeric()
         numeric.name = f"sysid_{effect}_{plant.joint_names[j]}"
         numeric.data = [float(v) for v in params]
+    _write_friction_shapes(spec, plant, ext)
     spec.compile()
     header = "<!-- Calibrated by sysid-diagnose (see identify/diagnose/calibrate.py for the mapping)."
     text = header + ("\n     " + comment.replace("--", "-") if comment else "") + " -->\n"
     return text + spec.to_xml()
+
+
+def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) -> None:
+    """Every joint whose friction the fit changed gets the solver parameters that make MuJoCo apply the fitted
+    shape (`dynamics.friction`); `ext.friction_speed` records the ramp width written."""
+    changed = [j for j in range(plant.nv) if ext.frictionloss[j] != 0 or ext.friction_speed[j] > 0]
+    if not changed:
+        return
+    m = spec.compile()  # the inverse inertias of the calibrated model (its inertials and joint refs)
+    for j in changed:
+        name = plant.joint_names[j]
+        fc, invweight = float(m.dof_frictionloss[j]), float(m.dof_invweight0[j])
+        if fc <= 0:
+            ext.friction_speed[j] = 0.0
+            continue
+        step = float(m.opt.timestep)
+        if ext.friction_speed[j] <= 0:
+            ext.friction_speed[j] = ideal_friction_speed(fc, invweight, step)
+        solref, solimp = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
+        joint = spec.joint(name)
+        joint.solref_friction, joint.solimp_friction = solref, solimp
 
 
 def predict_measured_torque(
@@ -482,8 +516,15 @@ def mjcf_measured_torque(
     Args:
         model: the compiled calibrated MJCF.
         time: (N,) sample times [s]; q, dq, ddq: (N, nv) joint states [rad, rad/s, rad/s^2].
+
+    Raises:
+        ValueError: the file holds a custom numeric of an earlier version (`RETIRED_EFFECTS`).
     """
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, k) for k in range(model.njnt)]
+    for effect, now in RETIRED_EFFECTS.items():
+        old = [n for n in names if _numeric(model, f"sysid_{effect}_{n}") is not None]
+        if old:
+            raise ValueError(f"numeric sysid_{effect}_{old[0]}: written by an earlier version; it is now {now}")
     custom = []
     for j, name in enumerate(names):
         for effect in CUSTOM_EFFECTS:
@@ -517,13 +558,15 @@ def applied_from_measured(ext: Extension, time: np.ndarray, tau_measured: np.nda
 def frictionloss_mapping(
     calibrated: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
 ) -> dict[str, dict[str, float]]:
-    """How MuJoCo's constraint-based frictionloss compares with the ideal Coulomb term Fc sign(dq).
+    """How MuJoCo's constraint-based frictionloss compares with the shape the model declares for it.
 
     The friction force MuJoCo's inverse dynamics produces (with and without the joints' frictionloss, along the
-    given motion) is compared with Fc sign(dq) on every joint that has friction.
+    given motion) is compared with Fc shape(dq) on every joint that has friction: the ramp Fc sat(dq / vt)
+    where the joint declares one (`dynamics.friction`), the ideal Fc sign(dq) otherwise.
 
     Returns:
-        Per joint: `frictionloss` Fc [N m], `rms_difference` [N m], `relative` (rms / Fc), `saturated_fraction`
+        Per joint: `frictionloss` Fc [N m], `declared_speed` vt [rad/s] (0: ideal), `declared_lead` [s],
+        `rms_difference` [N m], `relative` (rms / Fc), `saturated_fraction`
         (share of samples where MuJoCo's force is within 5 % of Fc) and `transition_speed` [rad/s] (the speed
         below which MuJoCo's force falls under 90 % of Fc, a 90th percentile over such samples).
     """
@@ -539,10 +582,13 @@ def frictionloss_mapping(
         if fc <= 0:
             continue
         f_mj = with_f[:, j] - without[:, j]
-        ideal = fc * np.sign(dq[:, j])
+        declared = friction_shape(dq, ddq, calibrated.friction_speed, calibrated.friction_lead)
+        ideal = fc * declared[:, j]
         under = np.abs(f_mj) < 0.9 * fc
         out[name] = {
             "frictionloss": fc,
+            "declared_speed": float(calibrated.friction_speed[j]),
+            "declared_lead": float(calibrated.friction_lead[j]),
             "rms_difference": float(np.sqrt(np.mean((f_mj - ideal) ** 2))),
             "relative": float(np.sqrt(np.mean((f_mj - ideal) ** 2)) / fc),
             "saturated_fraction": float(np.mean(np.abs(np.abs(f_mj) - fc) < 0.05 * fc)),

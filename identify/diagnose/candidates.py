@@ -18,19 +18,26 @@ times unknown coefficients (one group of columns per effect and joint or body):
     rigid_body        the base rigid-body columns              RMS torque change (N m)    every `inertial`
     cogging           sin(n q_j), cos(n q_j) (actuated only)   amplitude (N m)            custom numeric [n, a, b]
     stribeck_friction sign(dq_j) exp(-(dq_j / vs)^2)           breakaway excess Fs (N m)  custom numeric [Fs, vs]
-    smooth_coulomb_   tanh(dq_j / vt)                          Fc (N m)                   custom numeric [Fc, vt]
-      friction
+    smooth_coulomb_   sat(dq_j / vt) (a ramp of width vt)      Fc (N m)                   joint `frictionloss` with
+      friction                                                                            solref/solimpfriction
+                                                                                          making it that ramp
     load_friction     |tau_nominal_j| sign(dq_j) (actuated)    mu (1)                     custom numeric [mu]
     backlash          -d tau_nominal/d q_j sign(dq_j)          lost motion b (rad)        custom numeric [b]
     joint_elasticity  -d tau_nominal/d q_j tau_nominal_j       stiffness k (N m/rad)      custom numeric [k]
                       (actuated only)
 
 Physical ranges (`Candidate.bounds`, constants below): a joint's total armature, damping, frictionloss and
-stiffness >= 0; 0 <= delay <= `MAX_DELAY_S`; gain within 1 +- `GAIN_BAND`; |joint offset| <= `MAX_JOINT_OFFSET`;
-added payload mass >= 0; Stribeck and smooth Coulomb amplitudes >= 0; 0 <= mu <= `MAX_LOAD_FRICTION`;
-0 <= b <= `MAX_BACKLASH`; k >= 1 / `MAX_COMPLIANCE`. The cogging period is the one the training residual shows
-(`cogging_harmonic` scans `COGGING_HARMONICS`), the Stribeck and transition speeds a small grid (each a
-candidate of its own, `variant`).
+stiffness >= 0 (the smooth Coulomb friction is the joint's frictionloss too); 0 <= delay <= `MAX_DELAY_S`; gain
+within 1 +- `GAIN_BAND`; |joint offset| <= `MAX_JOINT_OFFSET`; added payload mass >= 0; Stribeck amplitude >= 0;
+0 <= mu <= `MAX_LOAD_FRICTION`; 0 <= b <= `MAX_BACKLASH`; k >= 1 / `MAX_COMPLIANCE`. The cogging period is the one
+the training residual shows (`cogging_harmonic` scans `COGGING_HARMONICS`), the Stribeck and transition speeds a
+small grid (each a candidate of its own, `variant`).
+
+A joint has one frictionloss, so one friction shape: `coulomb_friction` (ideal, written as sharp as the model's
+step allows) and `smooth_coulomb_friction` (a ramp of width vt) exclude each other on a joint
+(`FRICTIONLOSS_EFFECTS`). Where the nominal MJCF already has a frictionloss F0 on the joint, the written ramp
+carries F0 too; that change of F0's shape, F0 (sat(dq / vt) - sign(dq)), nonzero only below vt, is left out of
+the fit.
 
 `rotor_coupling` is the rotor of the motor that drives joint j, its stator on the parent link: the rotor turns
 at (the parent's angular velocity + gr dq_j), so its kinetic energy 1/2 Ir (w_parent + gr dq_j)^2 adds the
@@ -61,6 +68,7 @@ from identify.derivatives import States
 
 __all__ = [
     "CANDIDATE_EFFECTS",
+    "FRICTIONLOSS_EFFECTS",
     "Candidate",
     "Signals",
     "candidates",
@@ -259,7 +267,8 @@ MAX_LOAD_FRICTION = 0.5  # largest load-dependent friction coefficient (friction
 MAX_BACKLASH = 0.05  # widest backlash (lost motion) named [rad]
 MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/rad) [rad/(N m)]
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
-SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # transition speeds of a smooth (tanh) Coulomb friction tried [rad/s]
+SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # ramp widths of a smooth Coulomb friction tried [rad/s]
+FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction")  # shapes of one joint frictionloss
 COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # cycles per radian scanned for position-periodic torque [1/rad]
 
 
@@ -325,22 +334,23 @@ def _shape_friction(plant: Plant) -> list[Candidate]:
         for vt in SMOOTH_COULOMB_SPEEDS:
 
             def smooth(s: Signals, j: int = j, vt: float = vt) -> np.ndarray:
-                return np.tanh(s.dq[:, j] / vt)
+                return np.clip(s.dq[:, j] / vt, -1.0, 1.0)
 
             note = (
-                f"smooth Coulomb friction Fc tanh(dq/{vt:g}); written as numeric sysid_smooth_coulomb_<joint> = "
-                "[Fc, vt] (MuJoCo's frictionloss is a constraint with its own transition)"
+                f"smooth Coulomb friction Fc sat(dq/{vt:g}) (no friction force at rest, full once sliding faster "
+                f"than {vt:g} rad/s): the joint's frictionloss Fc, its solreffriction and solimpfriction set so "
+                "that MuJoCo applies that ramp (dynamics.friction)"
             )
             out.append(
                 Candidate(
                     "smooth_coulomb_friction",
                     name,
                     "N m",
-                    "custom numeric",
+                    "joint frictionloss (ramp)",
                     (f"Fct{j + 1}",),
                     _own_row(plant.nv, j, smooth),
                     _first,
-                    ((0.0, np.inf),),
+                    ((-float(plant.frictionloss[j]), np.inf),),  # the joint's total friction stays >= 0
                     note,
                     f"{vt:g}",
                 )

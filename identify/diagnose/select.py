@@ -7,9 +7,13 @@ admissible when it lowers the BIC and its cross-validation (each training record
 contiguous time blocks of a single record) lowers the held-out weighted torque MSE by at least `min_gain`
 (`min_gain_records` when records are held out) of the current one, and when the chosen ones do not
 already explain most of its column, and when it lowers the held-out error in most folds (a gain on
-average that one fold carries is not a gain that generalises); among the admissible ones the lowest BIC
+average that one fold carries is not a gain that generalises). Where three or more records are held out in
+turn and the candidate lowers the held-out error of every one of them by `min_gain_records`, that is the
+evidence the BIC approximates, and the BIC margin is not asked for. Among the admissible ones the lowest BIC
 wins (the parsimonious explanation: one armature column beats a whole rigid-body refit that fits the same
-data). Columns that the chosen ones already span are dropped.
+data), except between the shapes of one joint's frictionloss (ideal Coulomb and ramps of several widths, one
+coefficient each): the one with the lowest held-out error is taken, and a ramp only where it beats the ideal
+shape by `native_preference` (its width is a choice from a grid). Columns that the chosen ones already span are dropped.
 
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
 counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
@@ -24,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
-from identify.diagnose.candidates import Candidate, Signals
+from identify.diagnose.candidates import FRICTIONLOSS_EFFECTS, Candidate, Signals
 from identify.diagnose.statistics import LinearFit, correlation_time, fit_bounded
 
 __all__ = ["LinearFit", "SelectionOptions", "Step", "fit_columns", "select_effects"]
@@ -40,7 +44,8 @@ class SelectionOptions:
         min_gain_records: the same when whole records are held out in turn: a gain that holds on recordings
             the fit never saw is stronger evidence than one on another stretch of the same recording, so
             a smaller one counts.
-        bic_margin: smallest BIC drop that counts.
+        bic_margin: smallest BIC drop that counts (not asked of a candidate that lowers the held-out error of
+            each of three or more held-out records by `min_gain_records`).
         folds: contiguous blocks of the training rows for cross-validation.
         max_findings: at most this many effects are chosen.
         min_z: smallest |value| / std of a chosen effect's headline value.
@@ -52,9 +57,10 @@ class SelectionOptions:
         confound_independence: a finding whose headline column an effect not chosen (with the other
             findings) explains to within this share of its norm is reported as confounded with it: the
             data cannot tell the two apart, and the finding names both.
-        native_preference: an effect MuJoCo has no attribute for (a custom numeric such as a smooth Coulomb
+        native_preference: an effect MuJoCo has no attribute for (a custom numeric such as a Stribeck
             shape) is chosen over an admissible native one only when its held-out MSE is lower by more
-            than this share (MuJoCo's own frictionloss is already smooth near zero speed, for one).
+            than this share; so is a friction ramp (`dynamics.friction`), whose width is picked from a grid,
+            over the ideal Coulomb shape.
     """
 
     min_gain: float = 0.02
@@ -189,6 +195,13 @@ def _fold_mse(held: np.ndarray, folds: np.ndarray, n_folds: int) -> float:
     return float(np.sum(held * sizes) / np.sum(sizes))
 
 
+def _shares_frictionloss(cand: Candidate, chosen: list[Step]) -> bool:
+    """True where a friction shape is already chosen for the candidate's joint (one frictionloss per joint)."""
+    return cand.effect in FRICTIONLOSS_EFFECTS and any(
+        s.candidate.effect in FRICTIONLOSS_EFFECTS and s.candidate.target == cand.target for s in chosen
+    )
+
+
 def select_effects(
     pool: list[Candidate],
     train: Signals,
@@ -241,7 +254,7 @@ def select_effects(
         best: tuple[float, Candidate, list[int], float, np.ndarray] | None = None
         admissible: list[tuple[float, Candidate, list[int], float, np.ndarray]] = []
         for cand in pool:
-            if any(s.candidate.key == cand.key for s in chosen):
+            if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
                 continue
             cols = built[cand.key]
             kept = _span_free(basis, _flat(cols, sw))
@@ -258,7 +271,8 @@ def select_effects(
             bic_c = _bic(rss_c, n_obs, n_eff, A.shape[1])
             gains = 1.0 - held_c / np.maximum(held, 1e-300)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
-            if bic_c - bic > -options.bic_margin or cv_c > (1 - min_gain) * cv:
+            unanimous = kind == "files" and n_folds >= 3 and bool(np.all(gains >= min_gain))
+            if cv_c > (1 - min_gain) * cv or (bic_c - bic > -options.bic_margin and not unanimous):
                 continue
             if np.count_nonzero(gains > 0) * 2 <= n_folds:
                 continue  # it must lower the held-out error in most folds, not on average only
@@ -267,6 +281,14 @@ def select_effects(
                 best = (bic_c, cand, kept, rss_c, held_c)
         if best is None:
             break
+        if best[1].effect in FRICTIONLOSS_EFFECTS:  # shapes of one frictionloss (one coefficient each): held-out error
+            shapes = [a for a in admissible if a[1].effect in FRICTIONLOSS_EFFECTS and a[1].target == best[1].target]
+            best = min(shapes, key=lambda a: _fold_mse(a[4], folds, n_folds))
+            ideal = [a for a in shapes if a[1].effect == "coulomb_friction"]  # no width picked from a grid
+            if ideal and _fold_mse(ideal[0][4], folds, n_folds) * (1 - options.native_preference) <= _fold_mse(
+                best[4], folds, n_folds
+            ):
+                best = ideal[0]
         if not best[1].native:  # a shape MuJoCo cannot hold must beat a native alternative clearly
             held_best = _fold_mse(best[4], folds, n_folds)
             ties = [

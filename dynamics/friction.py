@@ -1,0 +1,121 @@
+"""MuJoCo's `frictionloss` as a declared friction shape: Fc sat((dq + lead ddq) / vt).
+
+MuJoCo applies a joint's `frictionloss` Fc through a soft constraint. In inverse dynamics (`mj_inverse`, how a
+calibrated MJCF is judged against logged torque) the friction force it produces is exactly
+
+    f = Fc clip((dq + ddq / B) / vt, -1, 1),   vt = R Fc / B,   R = (1 - d) / d * invweight0
+
+with B the constraint's reference damping (2 / (dmax timeconst) for a positive `solref`, -solref[1] / dmax for
+the direct form), d its impedance at zero violation (`solimp[0]`) and invweight0 the dof's inverse inertia at
+the model's reference pose (`dof_invweight0`). With MuJoCo's defaults (solref 0.02 1, solimp 0.9 0.95) the
+friction leads the velocity by 1 / B = 9.5 ms, so it turns over well before a fast joint reverses, over a
+ramp vt that reaches metres per second on a light wrist. `friction_solver` writes the direct form for a given
+Fc and vt, with B as large as stability allows; `friction_parameters` reads vt and the lead 1 / B back.
+
+Forward simulation integrates the constraint's damping explicitly, at the rate A B Fc / (B vt + A Fc)
+(A = invweight0): it is stable (rate x timestep <= 1) when vt >= A Fc timestep (`min_friction_speed`) for any
+B, and for a narrower ramp when B <= A Fc / (A Fc timestep - vt) (about 1 / timestep), the price being a lead
+of at least one step. `ideal_friction_speed` picks the ramp that comes closest to the ideal Coulomb term.
+
+A dof whose parameters are not of the direct form (MuJoCo's defaults among them) has vt = 0: the harness's
+torque model then treats its friction as the ideal Coulomb term Fc sign(dq) it approximates.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+__all__ = [
+    "friction_parameters",
+    "friction_shape",
+    "friction_solver",
+    "ideal_friction_speed",
+    "min_friction_speed",
+]
+
+_MIN_IMPEDANCE = 2e-4  # impedance d of a written ramp stays >= this (MuJoCo clamps at 1e-4)
+_RAMP_DAMPING = 1e5  # B vt [rad/s^2] of a written ramp where stability allows: a lead of vt / 1e5 s
+# [rad/s^2] at which `ideal_friction_speed` weighs the lead against the width: a reversal of a 1 rad swing at
+# 1.6 Hz (the DFKI logs' sinusoids), where a lead of one 2 ms step shifts the turnover by 0.2 rad/s
+_REVERSAL_ACCELERATION = 100.0
+
+
+def friction_shape(dq: np.ndarray, ddq: np.ndarray, speed: np.ndarray, lead: np.ndarray) -> np.ndarray:
+    """(N, nv) the declared friction shape per unit `frictionloss`: sat((dq + lead ddq) / vt), sign(dq) where
+    vt = 0.
+
+    Args:
+        dq, ddq: (N, nv) joint velocities and accelerations [rad/s, rad/s^2].
+        speed: (nv,) ramp widths vt [rad/s]; lead: (nv,) leads 1 / B [s] (`friction_parameters`).
+    """
+    dq = np.asarray(dq, dtype=float)
+    speed = np.asarray(speed, dtype=float)
+    ramp = np.clip((dq + np.asarray(lead) * np.asarray(ddq)) / np.where(speed > 0, speed, 1.0), -1.0, 1.0)
+    return np.where(speed > 0, ramp, np.sign(dq))
+
+
+def friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """((nv,) ramp width vt [rad/s], (nv,) lead 1 / B [s]) of each dof's frictionloss; both 0 where its solver
+    parameters are not a direct-form ramp (`friction_solver`'s form: solref[0] = 0, solref[1] < 0,
+    solimp[0] = solimp[1])."""
+    speed, lead = np.zeros(m.nv), np.zeros(m.nv)
+    for j in range(m.nv):
+        fc = float(m.dof_frictionloss[j])
+        ref, imp = m.dof_solref[j], m.dof_solimp[j]
+        if fc <= 0 or ref[0] != 0 or ref[1] >= 0 or imp[0] != imp[1]:
+            continue
+        d = float(imp[0])
+        damping = -float(ref[1]) / d
+        speed[j] = (1.0 - d) / d * float(m.dof_invweight0[j]) * fc / damping
+        lead[j] = 1.0 / damping
+    return speed, lead
+
+
+def min_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:
+    """Narrowest ramp [rad/s] that forward simulation at `timestep` integrates stably with any lead."""
+    return float(invweight0 * frictionloss * timestep)
+
+
+def _damping(a: float, speed: float, timestep: float) -> float:
+    """The largest B for a ramp vt within stability, the impedance floor and `_RAMP_DAMPING` (a = A Fc)."""
+    b = min(_RAMP_DAMPING, a * (1.0 - _MIN_IMPEDANCE) / _MIN_IMPEDANCE) / speed
+    if speed < a * timestep:
+        b = min(b, a / (a * timestep - speed))
+    return b
+
+
+def friction_solver(
+    frictionloss: float, speed: float, invweight0: float, timestep: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(solreffriction (2,), solimpfriction (5,)) that make MuJoCo's frictionloss Fc the ramp
+    Fc sat((dq + ddq / B) / vt), B as large as stable forward simulation allows (see the module docstring).
+
+    Args:
+        frictionloss: Fc [N m] (> 0).
+        speed: vt [rad/s] (> 0).
+        invweight0: the dof's `dof_invweight0` in the compiled model.
+        timestep: the model's physics step [s].
+
+    Raises:
+        ValueError: a non-positive Fc, vt, invweight0 or timestep.
+    """
+    if min(frictionloss, speed, invweight0, timestep) <= 0:
+        raise ValueError(
+            f"friction_solver needs Fc, vt, invweight0, timestep > 0, got {frictionloss}, {speed}, {invweight0}, "
+            f"{timestep}"
+        )
+    a = invweight0 * frictionloss
+    damping = _damping(a, speed, timestep)
+    d = a / (a + damping * speed)  # R = B vt / Fc
+    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0])
+
+
+def ideal_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:
+    """The ramp width [rad/s] written for an ideal Coulomb friction: the one whose transition, its width plus the
+    lead at `_REVERSAL_ACCELERATION`, is narrowest within stable forward simulation."""
+    a = invweight0 * frictionloss
+    top = max(min_friction_speed(frictionloss, invweight0, timestep), 1e-6)
+    grid = np.geomspace(top * 1e-3, top, 61)
+    width = [v + _REVERSAL_ACCELERATION / _damping(a, float(v), timestep) for v in grid]
+    return float(grid[int(np.argmin(width))])

@@ -1,0 +1,257 @@
+"""MuJoCo's frictionloss as a declared ramp (`dynamics.friction`): what is written is what MuJoCo applies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from dynamics.friction import (
+    friction_parameters,
+    friction_shape,
+    friction_solver,
+    ideal_friction_speed,
+    min_friction_speed,
+)
+from dynamics.plant import load_plant
+from dynamics.regressor import ParameterModel
+from dynamics.torque import inverse_dynamics, joint_torque
+from identify.diagnose.calibrate import Extension, calibrated_xml, mjcf_measured_torque
+
+ROBOTS = Path(__file__).resolve().parents[2] / "shared" / "robots"
+
+
+def _ramp_xml(path: Path, frictionloss: np.ndarray, speed: np.ndarray) -> str:
+    """MJCF text of the model at `path` with each dof's friction the ramp of width `speed` (`friction_solver`)."""
+    spec = mujoco.MjSpec.from_file(str(path))
+    m = spec.compile()
+    for j in range(m.njnt):
+        joint = spec.joint(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j))
+        joint.frictionloss = float(frictionloss[j])
+        joint.solref_friction, joint.solimp_friction = friction_solver(
+            float(frictionloss[j]), float(speed[j]), float(m.dof_invweight0[j]), float(m.opt.timestep)
+        )
+    return spec.to_xml()  # type: ignore[no-any-return]
+
+
+def _with_ramps(path: Path, frictionloss: np.ndarray, speed: np.ndarray) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(_ramp_xml(path, frictionloss, speed))
+
+
+def _unbounded_ramp(m: mujoco.MjModel, speed: np.ndarray) -> None:
+    """Set (in place) ramps of width `speed` with the damping B = 1e5 / vt a wide ramp gets, whatever the step."""
+    for j in range(m.nv):
+        a = float(m.dof_invweight0[j] * m.dof_frictionloss[j])
+        b = 1e5 / float(speed[j])
+        d = a / (a + b * float(speed[j]))
+        m.dof_solref[j] = [0.0, -b * d]
+        m.dof_solimp[j, :2] = d
+
+
+def _friction_force(m: mujoco.MjModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """(N, nv) the friction part of MuJoCo's inverse dynamics (with and without the dofs' frictionloss)."""
+    with_f = inverse_dynamics(m, q, dq, ddq)
+    saved = m.dof_frictionloss.copy()
+    m.dof_frictionloss[:] = 0.0
+    without = inverse_dynamics(m, q, dq, ddq)
+    m.dof_frictionloss[:] = saved
+    return with_f - without  # type: ignore[no-any-return]
+
+
+def _states(rng: np.random.Generator, n: int, nv: int, speed: np.ndarray) -> tuple[np.ndarray, ...]:
+    q = rng.uniform(-1.5, 1.5, (n, nv))
+    dq = rng.uniform(-3, 3, (n, nv)) * np.maximum(speed, 1e-3)  # most samples on the ramp, some saturated
+    return q, dq, rng.uniform(-50, 50, (n, nv))
+
+
+@pytest.mark.parametrize(
+    ("system", "frictionloss", "speed"),
+    [
+        ("two_link", [0.25, 0.19], [0.03, 0.01]),
+        ("two_link", [0.002, 0.5], [0.1, 0.3]),  # a small Fc: B is limited by the impedance floor
+        ("two_link", [0.25, 0.19], [1e-4, 2e-3]),  # narrower than the step simulates: B is limited, a lead
+        ("arm3", [0.3, 0.2, 0.05], [0.01, 0.05, 0.2]),
+    ],
+)
+def test_mujoco_inverse_dynamics_applies_the_declared_ramp(system: str, frictionloss: list, speed: list) -> None:
+    plant = load_plant(system)
+    fc, vt = np.array(frictionloss), np.array(speed)
+    m = _with_ramps(plant.path, fc, vt)
+    got_speed, lead = friction_parameters(m)  # read back from the compiled file
+    np.testing.assert_allclose(got_speed, vt, rtol=1e-5)
+    assert np.all(lead > 0) and np.all(lead <= 1.0001 * m.opt.timestep)  # B is limited to about 1 / timestep
+    q, dq, ddq = _states(np.random.default_rng(0), 400, plant.nv, vt)
+    got = _friction_force(m, q, dq, ddq)
+    np.testing.assert_allclose(got, fc * friction_shape(dq, ddq, vt, lead), atol=1e-5 * fc.max())  # MJCF: 6+ digits
+
+
+def test_default_solver_parameters_declare_no_ramp_and_turn_over_early() -> None:
+    """MuJoCo's defaults: no declared ramp (the torque model's ideal Coulomb), and mj_inverse turns the friction
+    over where dq + ddq / 105 changes sign, far from the reversal of a fast motion."""
+    plant = load_plant("two_link")
+    m = mujoco.MjModel.from_xml_path(str(plant.path))
+    m.dof_frictionloss[:] = 0.2
+    speed, lead = friction_parameters(m)
+    assert np.all(speed == 0) and np.all(lead == 0)
+    q, dq, ddq = np.zeros((1, 2)), np.full((1, 2), 0.05), np.full((1, 2), -30.0)
+    np.testing.assert_allclose(_friction_force(m, q, dq, ddq), -0.2, atol=1e-9)  # sliding forward, braked backward
+
+
+def test_torque_model_and_regressor_use_the_declared_ramp(tmp_path: Path) -> None:
+    """A plant loaded from a ramp MJCF: the one torque model and the identification regressor equal MuJoCo's
+    inverse dynamics, friction included, at any acceleration."""
+    base = load_plant("two_link")
+    path = tmp_path / "ramp.xml"
+    path.write_text(_ramp_xml(base.path, np.array([0.25, 0.19]), np.array([0.03, 1e-3])))
+    plant = load_plant(path)
+    np.testing.assert_allclose(plant.friction_speed, [0.03, 1e-3], rtol=1e-5)
+    q, dq, ddq = _states(np.random.default_rng(1), 300, 2, plant.friction_speed)
+    tau, _ = joint_torque(plant, q, dq, ddq)
+    np.testing.assert_allclose(tau, inverse_dynamics(plant, q, dq, ddq), atol=1e-5)
+    pm = ParameterModel(plant, ("armature", "coulomb_friction"))
+    np.testing.assert_allclose(pm.regressor(q, dq, ddq) @ pm.truth(), tau, atol=1e-5)
+
+
+def _release(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """Energy (every 0.1 s) and joint velocities (every step) of the arm released from a tilted pose, 4 s."""
+    d = mujoco.MjData(m)
+    d.qpos[:] = [1.2, -0.8]
+    energy, qvel = [], []
+    for k in range(int(4.0 / m.opt.timestep)):
+        mujoco.mj_step(m, d)
+        qvel.append(d.qvel.copy())
+        if k % int(0.1 / m.opt.timestep) == 0:
+            mujoco.mj_energyPos(m, d)
+            mujoco.mj_energyVel(m, d)
+            energy.append(float(d.energy.sum()))
+    return np.array(energy), np.array(qvel)
+
+
+def _chatter(qvel: np.ndarray, m: mujoco.MjModel) -> int:
+    """Sign changes of the joint velocities over the last second (an arm at rest that chatters flips each step)."""
+    last = qvel[-int(1.0 / m.opt.timestep) :]
+    return int(np.count_nonzero(np.diff(np.sign(last), axis=0)))
+
+
+@pytest.mark.parametrize("narrower", [1.0, 50.0])
+def test_forward_simulation_of_a_written_ramp_comes_to_rest_without_chatter(narrower: float) -> None:
+    """The ramps `friction_solver` writes, at the narrowest width any damping allows and 50x narrower (where B is
+    held to about 1 / timestep: a lead of a step), are stable in forward simulation: the released arm loses
+    energy over every 0.1 s and comes to rest without chatter. A ramp 5x narrower than the stable width with
+    the damping a wide ramp gets chatters at rest (its velocities flip sign nearly every step): the limit on B
+    is what keeps a narrow ramp stable."""
+    plant = load_plant("two_link")
+    m0 = mujoco.MjModel.from_xml_path(str(plant.path))
+    fc, w, dt = np.array([0.25, 0.19]), m0.dof_invweight0, m0.opt.timestep
+    stable = np.array([min_friction_speed(fc[j], w[j], dt) for j in range(2)])
+    m = _with_ramps(plant.path, fc, stable / narrower)
+    energy, qvel = _release(m)
+    assert np.all(np.diff(energy) < 0)
+    assert _chatter(qvel, m) < 10
+    unbounded = _with_ramps(plant.path, fc, stable)
+    _unbounded_ramp(unbounded, stable / 5)  # an explicit rate of 5 / timestep
+    _, qvel_unbounded = _release(unbounded)
+    assert _chatter(qvel_unbounded, unbounded) > 500
+
+
+def test_calibrated_mjcf_writes_the_fitted_shape_and_mujoco_applies_it(tmp_path: Path) -> None:
+    """A fitted smooth Coulomb friction (and an ideal one) in the calibrated MJCF: MuJoCo's inverse dynamics of
+    the file gives the torque the diagnosis predicts with the declared shapes."""
+    plant = load_plant("two_link")
+    ext = Extension.none(plant)
+    ext.frictionloss[:] = [0.2, 0.15]
+    ext.friction_speed[:] = [0.1, 0.0]  # shoulder: a 0.1 rad/s ramp; elbow: ideal
+    path = tmp_path / "calibrated.xml"
+    path.write_text(calibrated_xml(plant, ext))
+    model = mujoco.MjModel.from_xml_path(str(path))
+    speed, _ = friction_parameters(model)
+    ideal = ideal_friction_speed(0.15, float(model.dof_invweight0[1]), float(model.opt.timestep))
+    np.testing.assert_allclose(speed, [0.1, ideal], rtol=1e-5)
+    np.testing.assert_allclose(ext.friction_speed, speed, rtol=1e-5)  # the extension records what was written
+    q, dq, ddq = _states(np.random.default_rng(2), 300, 2, speed)
+    got = mjcf_measured_torque(model, np.arange(300) * 0.002, q, dq, ddq)
+    want, _ = joint_torque(load_plant(path), q, dq, ddq)
+    np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+def test_a_file_with_a_retired_custom_friction_numeric_is_refused() -> None:
+    plant = load_plant("two_link")
+    spec = mujoco.MjSpec.from_file(str(plant.path))
+    numeric = spec.add_numeric()
+    numeric.name = "sysid_smooth_coulomb_friction_elbow"
+    numeric.data = [0.1, 0.03]
+    model = mujoco.MjModel.from_xml_string(spec.to_xml())
+    z = np.zeros((3, 2))
+    with pytest.raises(ValueError, match="sysid_smooth_coulomb_friction_elbow: written by an earlier version"):
+        mjcf_measured_torque(model, np.arange(3) * 0.01, z, z, z)
+
+
+def test_friction_solver_refuses_a_non_positive_input() -> None:
+    with pytest.raises(ValueError, match="Fc, vt, invweight0, timestep > 0"):
+        friction_solver(0.1, 0.0, 10.0, 0.002)
+
+
+@pytest.mark.skipif(not (ROBOTS / "panda_nohand.xml").is_file(), reason="../shared/robots/panda_nohand.xml is absent")
+def test_the_ramp_holds_on_a_seven_dof_arm() -> None:
+    path = ROBOTS / "panda_nohand.xml"
+    m0 = mujoco.MjModel.from_xml_path(str(path))
+    fc = np.linspace(0.1, 1.0, m0.nv)
+    vt = np.array([ideal_friction_speed(fc[j], m0.dof_invweight0[j], m0.opt.timestep) for j in range(m0.nv)])
+    m = _with_ramps(path, fc, vt)
+    speed, lead = friction_parameters(m)
+    q, dq, ddq = _states(np.random.default_rng(3), 200, m.nv, speed)
+    got = _friction_force(m, q, dq, ddq)
+    np.testing.assert_allclose(got, fc * friction_shape(dq, ddq, speed, lead), atol=1e-5)
+    # the ideal friction's transition (width + lead at 100 rad/s^2) stays far below MuJoCo's defaults' (a width
+    # (1 - 0.9) / 0.9 invweight0 Fc 0.0095 and a 9.5 ms lead)
+    default = (1 - 0.9) / 0.9 * m0.dof_invweight0 * fc * 0.0095 + 100 * 0.0095
+    assert np.all(speed + 100 * lead < 0.5 * default)
+
+
+@pytest.mark.skipif(not (ROBOTS / "xarm7_nohand.xml").is_file(), reason="../shared/robots/xarm7_nohand.xml is absent")
+def test_a_changed_friction_on_an_arm_with_nominal_friction_is_written_and_the_others_are_left(tmp_path: Path) -> None:
+    """xArm7 (frictionloss 1 N m in its MJCF, a 2 ms step): one joint's friction changed to a 0.05 rad/s ramp is
+    written as that ramp (with the lead its stability needs), the joints the fit did not touch keep MuJoCo's
+    parameters, and the torque model agrees with mj_inverse on the changed joint."""
+    plant = load_plant(ROBOTS / "xarm7_nohand.xml")
+    j = 2
+    ext = Extension.none(plant)
+    ext.frictionloss[j] = 0.2
+    ext.friction_speed[j] = 0.05
+    path = tmp_path / "calibrated.xml"
+    path.write_text(calibrated_xml(plant, ext))
+    model = mujoco.MjModel.from_xml_path(str(path))
+    speed, lead = friction_parameters(model)
+    assert speed[j] == pytest.approx(0.05, rel=1e-5)
+    assert 0.05 < min_friction_speed(float(model.dof_frictionloss[j]), float(model.dof_invweight0[j]), 0.002)
+    assert lead[j] > 0.5 * model.opt.timestep  # narrower than the stable width: a lead of about a step
+    assert model.dof_frictionloss[j] == pytest.approx(plant.frictionloss[j] + 0.2)
+    untouched = [k for k in range(plant.nv) if k != j]
+    np.testing.assert_array_equal(speed[untouched], 0.0)
+    np.testing.assert_allclose(model.dof_solref[untouched], plant.mj_model.dof_solref[untouched])
+    calibrated = load_plant(path)
+    rng = np.random.default_rng(4)
+    q, ddq = rng.uniform(-1, 1, (200, plant.nv)), rng.uniform(-20, 20, (200, plant.nv))
+    dq = np.zeros((200, plant.nv))
+    dq[:, j] = rng.uniform(-0.2, 0.2, 200)
+    got = _friction_force(model, q, dq, ddq)[:, j]
+    shape = friction_shape(dq, ddq, calibrated.friction_speed, calibrated.friction_lead)
+    want = model.dof_frictionloss[j] * shape[:, j]
+    np.testing.assert_allclose(got, want, atol=1e-5 * model.dof_frictionloss[j])
+
+
+def test_simulating_with_hard_friction_keeps_a_declared_ramp() -> None:
+    """`system.hard_friction` stiffens MuJoCo's default friction, never a ramp the model declares."""
+    from envs.simulate import _hard_friction
+
+    plant = load_plant("two_link")
+    m = _with_ramps(plant.path, np.array([0.2, 0.1]), np.array([0.05, 0.05]))
+    m.dof_solref[1], m.dof_solimp[1] = [0.02, 1.0], [0.9, 0.95, 0.001, 0.5, 2.0]  # elbow: MuJoCo's defaults
+    ramp_ref, ramp_imp = m.dof_solref[0].copy(), m.dof_solimp[0].copy()
+    hard = _hard_friction(m)
+    np.testing.assert_array_equal(hard.dof_solref[0], ramp_ref)
+    np.testing.assert_array_equal(hard.dof_solimp[0], ramp_imp)
+    assert hard.dof_solref[1, 0] == pytest.approx(2 * hard.opt.timestep)
+    assert hard.dof_solimp[1, 0] == pytest.approx(0.999)
