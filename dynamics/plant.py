@@ -311,9 +311,12 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
     actuation = actuation_of(m, str(path))
     gear = actuation.gear()
     q_range = np.where(m.jnt_limited[:, None].astype(bool), m.jnt_range, [-np.inf, np.inf])
-    # a disabled spring or damper (an <option><flag>) is absent from MuJoCo's dynamics, so from ours too
+    # a disabled spring, damper or dry friction (an <option><flag>) is absent from MuJoCo's dynamics, so from ours
     spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
     damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+    friction_on = not m.opt.disableflags & int(
+        mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    )
     theta = np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])
     friction_speed, friction_lead = friction_parameters(m)
     plant = Plant(
@@ -333,7 +336,7 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
         theta=theta,
         armature=m.dof_armature.copy(),
         damping=m.dof_damping * float(damper_on),
-        frictionloss=m.dof_frictionloss.copy(),
+        frictionloss=m.dof_frictionloss * float(friction_on),
         stiffness=m.jnt_stiffness * float(spring_on),
         springref=m.qpos_spring.copy(),
         friction_speed=friction_speed,

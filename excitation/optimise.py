@@ -289,7 +289,9 @@ class _PositionProblem:
             a, b, q0 = self._columns(j)
             for d, (c, s) in enumerate(
                 [
-                    (0.5 * (lim.q_max[j] + lim.q_min[j]), 0.5 * (lim.q_max[j] - lim.q_min[j])),
+                    (0.5 * (lim.q_max[j] + lim.q_min[j]), 0.5 * (lim.q_max[j] - lim.q_min[j]))
+                    if finite[j]
+                    else (0.0, 0.0),
                     (0.0, lim.dq_max[j]),
                     (0.0, lim.ddq_max[j]),
                 ]

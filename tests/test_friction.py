@@ -255,3 +255,23 @@ def test_simulating_with_hard_friction_keeps_a_declared_ramp() -> None:
     np.testing.assert_array_equal(hard.dof_solimp[0], ramp_imp)
     assert hard.dof_solref[1, 0] == pytest.approx(2 * hard.opt.timestep)
     assert hard.dof_solimp[1, 0] == pytest.approx(0.999)
+
+
+@pytest.mark.parametrize("flag", ["frictionloss", "constraint"])
+def test_disabled_dry_friction_is_left_out_of_the_torque_model(flag: str, tmp_path: Path) -> None:
+    """`<option><flag frictionloss="disable"/>` (or constraint): MuJoCo applies no frictionloss, nor does the
+    plant's torque model, which still equals mj_inverse; a calibrated file with a fitted friction says so."""
+    base = load_plant("two_link")
+    xml = _ramp_xml(base.path, np.array([0.25, 0.19]), np.array([0.03, 0.03]))
+    spec = mujoco.MjSpec.from_string(xml)
+    spec.option.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))
+    path = tmp_path / "nofriction.xml"
+    path.write_text(spec.to_xml())
+    plant = load_plant(path)
+    assert not np.any(plant.frictionloss)
+    q, dq, ddq = _states(np.random.default_rng(5), 100, 2, np.array([0.03, 0.03]))
+    np.testing.assert_allclose(joint_torque(plant, q, dq, ddq)[0], inverse_dynamics(plant, q, dq, ddq), atol=1e-8)
+    ext = Extension.none(plant)
+    ext.frictionloss[0] = 0.1
+    calibrated_xml(plant, ext)
+    assert any("disables frictionloss" in n for n in ext.notes), ext.notes  # written, and said not to act

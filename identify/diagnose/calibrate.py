@@ -464,6 +464,12 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
     if not changed:
         return
     m = spec.compile()  # the inverse inertias of the calibrated model (its inertials and joint refs)
+    off = int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    if m.opt.disableflags & off:
+        ext.notes.append(
+            "the model's <option><flag> disables frictionloss (or every constraint): the fitted friction is written "
+            "but MuJoCo does not apply it until the flag is enabled"
+        )
     for j in changed:
         name = plant.joint_names[j]
         fc, invweight = float(m.dof_frictionloss[j]), float(m.dof_invweight0[j])
