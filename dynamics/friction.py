@@ -34,7 +34,8 @@ __all__ = [
     "min_friction_speed",
 ]
 
-_MIN_IMPEDANCE = 2e-4  # impedance d of a written ramp stays >= this (MuJoCo clamps at 1e-4)
+_MIN_IMPEDANCE = 2e-4  # impedance d of a written ramp stays within these (MuJoCo clamps to [1e-4, 0.9999])
+_MAX_IMPEDANCE = 0.999
 _RAMP_DAMPING = 1e5  # B vt [rad/s^2] of a written ramp where stability allows: a lead of vt / 1e5 s
 # [rad/s^2] at which `ideal_friction_speed` weighs the lead against the width: a reversal of a 1 rad swing at
 # 1.6 Hz (the DFKI logs' sinusoids), where a lead of one 2 ms step shifts the turnover by 0.2 rad/s
@@ -65,7 +66,7 @@ def friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
         ref, imp = m.dof_solref[j], m.dof_solimp[j]
         if fc <= 0 or ref[0] != 0 or ref[1] >= 0 or imp[0] != imp[1]:
             continue
-        d = float(imp[0])
+        d = float(np.clip(imp[0], 1e-4, 0.9999))  # as MuJoCo clamps it
         damping = -float(ref[1]) / d
         speed[j] = (1.0 - d) / d * float(m.dof_invweight0[j]) * fc / damping
         lead[j] = 1.0 / damping
@@ -75,6 +76,12 @@ def friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
 def min_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:
     """Narrowest ramp [rad/s] that forward simulation at `timestep` integrates stably with any lead."""
     return float(invweight0 * frictionloss * timestep)
+
+
+def _narrowest(a: float, timestep: float) -> float:
+    """Narrowest ramp [rad/s] whose damping-limited impedance stays <= `_MAX_IMPEDANCE` (a = A Fc): below it the
+    stable B and the impedance bound cannot both hold."""
+    return a * timestep * (1.0 - _MAX_IMPEDANCE)
 
 
 def _damping(a: float, speed: float, timestep: float) -> float:
@@ -87,9 +94,11 @@ def _damping(a: float, speed: float, timestep: float) -> float:
 
 def friction_solver(
     frictionloss: float, speed: float, invweight0: float, timestep: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(solreffriction (2,), solimpfriction (5,)) that make MuJoCo's frictionloss Fc the ramp
-    Fc sat((dq + ddq / B) / vt), B as large as stable forward simulation allows (see the module docstring).
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(solreffriction (2,), solimpfriction (5,), the width written [rad/s]) that make MuJoCo's frictionloss Fc
+    the ramp Fc sat((dq + ddq / B) / vt), B as large as stable forward simulation allows (see the module
+    docstring). A width narrower than the step and MuJoCo's impedance bound allow (A Fc timestep / 1000) is
+    widened to that.
 
     Args:
         frictionloss: Fc [N m] (> 0).
@@ -106,16 +115,18 @@ def friction_solver(
             f"{timestep}"
         )
     a = invweight0 * frictionloss
+    speed = max(speed, _narrowest(a, timestep))
     damping = _damping(a, speed, timestep)
     d = a / (a + damping * speed)  # R = B vt / Fc
-    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0])
+    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0]), speed
 
 
 def ideal_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:
     """The ramp width [rad/s] written for an ideal Coulomb friction: the one whose transition, its width plus the
-    lead at `_REVERSAL_ACCELERATION`, is narrowest within stable forward simulation."""
+    lead at `_REVERSAL_ACCELERATION`, is narrowest within stable forward simulation. Where A Fc timestep is
+    large (a heavy friction on a light joint at a coarse step) even that is wide: A Fc timestep / 1000 at least."""
     a = invweight0 * frictionloss
     top = max(min_friction_speed(frictionloss, invweight0, timestep), 1e-6)
-    grid = np.geomspace(top * 1e-3, top, 61)
+    grid = np.geomspace(max(_narrowest(a, timestep), top * 1e-6), top, 61)
     width = [v + _REVERSAL_ACCELERATION / _damping(a, float(v), timestep) for v in grid]
     return float(grid[int(np.argmin(width))])

@@ -8,8 +8,9 @@ declares (`dynamics.friction`): the ramp sat((dq + lead ddq) / vt) MuJoCo's inve
 joint's solver parameters say so (a calibrated MJCF), otherwise the ideal Coulomb term sign(dq) MuJoCo's soft
 constraint approximates: its force never exceeds `frictionloss` and reaches it once the joint slides (see
 `identify.diagnose.calibrate.frictionloss_mapping` for how close it comes), so the ideal term is the torque an
-actuator must be able to supply. Its derivative is taken as zero (piecewise constant, or a ramp narrower than
-any motion resolves). Joint angles are in the model's own coordinates, so a joint `ref` is honoured.
+actuator must be able to supply. Its derivative is zero for the ideal term (piecewise constant) and Fc / vt (in
+dq; Fc lead / vt in ddq) on a ramp. Joint angles are in the model's own coordinates, so a joint `ref` is
+honoured.
 
 Used by the excitation's torque limits, the limit check after simulation and the diagnosis alike.
 `inverse_dynamics` is MuJoCo's own `mj_inverse` (constraints included), for the simulated controller's
@@ -60,6 +61,13 @@ def joint_torque(
     if D is not None:
         D[0] += np.diag(plant.stiffness)
         D[1] += np.diag(plant.damping)
+        if coulomb and np.any(plant.friction_speed > 0):  # on a declared ramp: slope Fc / vt
+            ramp = plant.friction_speed > 0
+            x = (dq + plant.friction_lead * ddq) / np.where(ramp, plant.friction_speed, 1.0)
+            slope = np.where(ramp & (np.abs(x) < 1), plant.frictionloss / np.where(ramp, plant.friction_speed, 1.0), 0)
+            idx = np.arange(plant.nv)
+            D[1][:, idx, idx] += slope
+            D[2][:, idx, idx] += slope * plant.friction_lead
     return tau, D
 
 

@@ -30,7 +30,7 @@ def _ramp_xml(path: Path, frictionloss: np.ndarray, speed: np.ndarray) -> str:
     for j in range(m.njnt):
         joint = spec.joint(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j))
         joint.frictionloss = float(frictionloss[j])
-        joint.solref_friction, joint.solimp_friction = friction_solver(
+        joint.solref_friction, joint.solimp_friction, _ = friction_solver(
             float(frictionloss[j]), float(speed[j]), float(m.dof_invweight0[j]), float(m.opt.timestep)
         )
     return spec.to_xml()  # type: ignore[no-any-return]
@@ -275,3 +275,84 @@ def test_disabled_dry_friction_is_left_out_of_the_torque_model(flag: str, tmp_pa
     ext.frictionloss[0] = 0.1
     calibrated_xml(plant, ext)
     assert any("disables frictionloss" in n for n in ext.notes), ext.notes  # written, and said not to act
+
+
+@pytest.mark.parametrize("fc", [1e-4, 1.0, 100.0])
+@pytest.mark.parametrize("invweight0", [0.01, 1e5])
+@pytest.mark.parametrize("timestep", [1e-4, 0.01])
+@pytest.mark.parametrize("speed", [1e-4, 0.03, 10.0])
+def test_the_solver_stays_within_mujocos_impedance_bounds(
+    fc: float, invweight0: float, timestep: float, speed: float
+) -> None:
+    """Over the plausible range of Fc, inverse inertia, step and width, the impedance stays inside MuJoCo's clamp
+    [1e-4, 0.9999] (a clamped value would make MuJoCo's ramp differ from the declared one), and a width too
+    narrow for the step is widened, never silently misdeclared."""
+    solref, solimp, written = friction_solver(fc, speed, invweight0, timestep)
+    assert 1e-4 < solimp[0] == solimp[1] <= 0.999
+    assert written >= speed
+    if written > speed:
+        assert written == pytest.approx(invweight0 * fc * timestep * 1e-3)
+    d, damping = solimp[0], -solref[1] / solimp[0]
+    assert (1 - d) / d * invweight0 * fc / damping == pytest.approx(written, rel=1e-9)  # friction_parameters' vt
+
+
+def test_the_torque_derivatives_include_the_ramp_slope(tmp_path: Path) -> None:
+    """On a declared ramp the friction's derivative is Fc / vt in dq and Fc lead / vt in ddq: against central
+    differences of the torque model, away from the ramp's corners."""
+    base = load_plant("two_link")
+    path = tmp_path / "ramp.xml"
+    path.write_text(_ramp_xml(base.path, np.array([0.25, 0.19]), np.array([0.3, 2e-3])))
+    plant = load_plant(path)
+    assert plant.friction_lead[1] > 0.5 * plant.mj_model.opt.timestep  # the elbow's narrow ramp has a lead
+    rng = np.random.default_rng(6)
+    q, ddq = rng.uniform(-1, 1, (40, 2)), rng.uniform(-0.5, 0.5, (40, 2))
+    dq = rng.uniform(-0.1, 0.1, (40, 2)) * [1.0, 0.005]  # on both ramps
+    _, D = joint_torque(plant, q, dq, ddq, derivatives=True)
+    assert D is not None
+    for which, x in ((1, dq), (2, ddq)):
+        for j in range(2):
+            h = np.zeros_like(x)
+            h[:, j] = 1e-7 if which == 1 else 1e-5
+            args = [q, dq, ddq]
+            up, down = list(args), list(args)
+            up[which], down[which] = x + h, x - h
+            fd = (joint_torque(plant, *up)[0] - joint_torque(plant, *down)[0]) / (2 * h[:, j : j + 1])
+            np.testing.assert_allclose(D[which][:, :, j], fd, rtol=1e-4, atol=1e-6)
+
+
+def test_refitting_the_friction_of_a_declared_ramp_keeps_its_width(tmp_path: Path) -> None:
+    """Diagnosing a calibrated file again: an ideal-Coulomb change of a joint that declares a ramp changes Fc only,
+    the width stays, and the candidate's column is that ramp."""
+    from types import SimpleNamespace
+
+    from identify.diagnose.candidates import candidates
+
+    base = load_plant("two_link")
+    path = tmp_path / "ramp.xml"
+    path.write_text(_ramp_xml(base.path, np.array([0.25, 0.19]), np.array([0.1, 0.05])))
+    plant = load_plant(path)
+    ext = Extension.none(plant)
+    ext.frictionloss[0] = 0.05  # a coulomb_friction finding: no width of its own
+    out = tmp_path / "again.xml"
+    out.write_text(calibrated_xml(plant, ext))
+    speed, _ = friction_parameters(mujoco.MjModel.from_xml_path(str(out)))
+    np.testing.assert_allclose(speed, [0.1, 0.05], rtol=1e-4)
+    (cand,) = [c for c in candidates(plant, ["coulomb_friction"], np.random.default_rng(0)) if c.target == "shoulder"]
+    dq = np.array([[-0.2, 0.0], [-0.05, 0.0], [0.0, 0.0], [0.05, 0.0], [0.2, 0.0]])
+    col = cand.build(SimpleNamespace(n_samples=5, dq=dq, ddq=np.zeros((5, 2))))  # type: ignore[arg-type]
+    np.testing.assert_allclose(col[:, 0, 0], [-1, -0.5, 0, 0.5, 1], atol=1e-4)  # the declared ramp, not sign
+
+
+def test_a_calibrated_file_keeps_the_friction_a_disabled_flag_hides(tmp_path: Path) -> None:
+    """With frictionloss disabled by a flag the plant has none, but the calibrated file keeps the file's own value
+    (and adds the fitted change to it), as it does for damping and stiffness."""
+    base = load_plant("two_link")
+    spec = mujoco.MjSpec.from_string(_ramp_xml(base.path, np.array([0.3, 0.2]), np.array([0.05, 0.05])))
+    spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)
+    path = tmp_path / "off.xml"
+    path.write_text(spec.to_xml())
+    plant = load_plant(path)
+    ext = Extension.none(plant)
+    ext.frictionloss[1] = 0.1
+    model = mujoco.MjModel.from_xml_string(calibrated_xml(plant, ext))
+    np.testing.assert_allclose(model.dof_frictionloss, [0.3, 0.3], rtol=1e-5)

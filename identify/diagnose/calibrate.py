@@ -115,6 +115,10 @@ class Extension:
     custom: list[tuple[str, int, tuple[float, ...]]] = field(default_factory=list)
     friction_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
+    def __post_init__(self) -> None:
+        if self.friction_speed.size == 0:  # no shape given: every joint's friction ideal
+            object.__setattr__(self, "friction_speed", np.zeros(len(self.armature)))
+
     @classmethod
     def none(cls, plant: Plant) -> Extension:
         n = plant.nv
@@ -382,15 +386,16 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         if armature < 0:
             ext.notes.append(f"{name}: armature {armature:.4g} kg m^2 < 0 after the corrections; set to 0")
         joint.armature = float(max(armature, 0.0))
+        m0 = plant.mj_model  # the file's own values (the plant's are 0 where an <option><flag> disables them)
         damping = np.array(joint.damping, dtype=float)
-        damping[0] = plant.damping[j] + ext.damping[j]
+        damping[0] = float(m0.dof_damping[j]) + ext.damping[j]
         joint.damping = damping
-        friction = plant.frictionloss[j] + ext.frictionloss[j]
+        friction = float(m0.dof_frictionloss[j]) + ext.frictionloss[j]
         if friction < 0:
             ext.notes.append(f"{name}: fitted Coulomb friction {friction:.4g} N m < 0; frictionloss set to 0")
         joint.frictionloss = float(max(friction, 0.0))
         stiffness = np.array(joint.stiffness, dtype=float)
-        stiffness[0] = plant.stiffness[j] + ext.stiffness[j]
+        stiffness[0] = float(m0.jnt_stiffness[j]) + ext.stiffness[j]
         joint.stiffness = stiffness
         unit = _angle_unit(spec, plant, j)
         joint.springref = float(ext.springref[j]) / unit
@@ -477,9 +482,10 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
             ext.friction_speed[j] = 0.0
             continue
         step = float(m.opt.timestep)
-        if ext.friction_speed[j] <= 0:
-            ext.friction_speed[j] = ideal_friction_speed(fc, invweight, step)
-        solref, solimp = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
+        if ext.friction_speed[j] <= 0:  # the joint's own ramp where it declares one, the ideal shape otherwise
+            declared = float(plant.friction_speed[j])
+            ext.friction_speed[j] = declared if declared > 0 else ideal_friction_speed(fc, invweight, step)
+        solref, solimp, ext.friction_speed[j] = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
         joint = spec.joint(name)
         joint.solref_friction, joint.solimp_friction = solref, solimp
 
@@ -567,8 +573,9 @@ def frictionloss_mapping(
     """How MuJoCo's constraint-based frictionloss compares with the shape the model declares for it.
 
     The friction force MuJoCo's inverse dynamics produces (with and without the joints' frictionloss, along the
-    given motion) is compared with Fc shape(dq) on every joint that has friction: the ramp Fc sat(dq / vt)
-    where the joint declares one (`dynamics.friction`), the ideal Fc sign(dq) otherwise.
+    given motion) is compared with Fc shape(dq, ddq) on every joint that has friction: the ramp
+    Fc sat((dq + lead ddq) / vt) where the joint declares one (`dynamics.friction`), the ideal Fc sign(dq)
+    otherwise.
 
     Returns:
         Per joint: `frictionloss` Fc [N m], `declared_speed` vt [rad/s] (0: ideal), `declared_lead` [s],

@@ -6,7 +6,8 @@ times unknown coefficients (one group of columns per effect and joint or body):
     effect            columns on the rows of joint j           value (unit)               counterpart
     armature          ddq_j                                    c (kg m^2)                 joint `armature`
     viscous_friction  dq_j                                     c (N m s/rad)              joint `damping`
-    coulomb_friction  sign(dq_j)                               c (N m)                    joint `frictionloss`
+    coulomb_friction  sign(dq_j) (the joint's ramp if it       c (N m)                    joint `frictionloss`
+                      declares one, `dynamics.friction`)
     joint_stiffness   q_j - springref_j, 1                     k = c0 (N m/rad)           `stiffness`, `springref`
     torque_offset     1                    (actuated only)     c (N m)                    actuator `biasprm`
     torque_gain       tau_nominal_j        (actuated only)     1 + c (measured / true)    actuator `gainprm`
@@ -59,6 +60,7 @@ import numpy as np
 from scipy import signal as sp_signal
 
 from dynamics.base import base_parameters
+from dynamics.friction import friction_shape
 from dynamics.plant import INERTIAL_SYMBOLS, Plant
 from dynamics.regressor import ParameterModel, rigid_body_regressor
 from dynamics.sampling import independent_columns, random_states
@@ -275,10 +277,15 @@ COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # cycles per radian scanned for p
 def _joint_effects(plant: Plant) -> list[Candidate]:
     nv, out = plant.nv, []
     inf = np.inf
+
+    def coulomb(s: Signals, j: int) -> np.ndarray:  # the joint's own shape: sign(dq), or the ramp it declares
+        speed, lead = plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1]
+        return friction_shape(s.dq[:, j : j + 1], s.ddq[:, j : j + 1], speed, lead)[:, 0]  # type: ignore[no-any-return]
+
     table: list[tuple[str, str, str, str, Callable[[Signals, int], np.ndarray], bool]] = [
         ("armature", "kg m^2", "joint armature", "Ia", lambda s, j: s.ddq[:, j], False),
         ("viscous_friction", "N m s/rad", "joint damping", "Fv", lambda s, j: s.dq[:, j], False),
-        ("coulomb_friction", "N m", "joint frictionloss", "Fc", lambda s, j: np.sign(s.dq[:, j]), False),
+        ("coulomb_friction", "N m", "joint frictionloss", "Fc", coulomb, False),
         ("torque_offset", "N m", "actuator biasprm", "off", lambda s, j: np.ones(s.n_samples), True),
         ("torque_gain", "1", "actuator gainprm", "dgain", lambda s, j: s.tau_nominal[:, j], True),
         ("time_delay", "s", "custom numeric (sensor side)", "delay", lambda s, j: -s.dtau_dt[:, j], True),

@@ -9,7 +9,7 @@ contiguous time blocks of a single record) lowers the held-out weighted torque M
 already explain most of its column, and when it lowers the held-out error in most folds (a gain on
 average that one fold carries is not a gain that generalises). Where three or more records are held out in
 turn and the candidate lowers the held-out error of every one of them by `min_gain_records`, that is the
-evidence the BIC approximates, and the BIC margin is not asked for. Among the admissible ones the lowest BIC
+evidence the BIC margin stands for: the BIC need only drop. Among the admissible ones the lowest BIC
 wins (the parsimonious explanation: one armature column beats a whole rigid-body refit that fits the same
 data), except between the shapes of one joint's frictionloss (ideal Coulomb and ramps of several widths, one
 coefficient each): the one with the lowest held-out error is taken, and a ramp only where it beats the ideal
@@ -44,7 +44,7 @@ class SelectionOptions:
         min_gain_records: the same when whole records are held out in turn: a gain that holds on recordings
             the fit never saw is stronger evidence than one on another stretch of the same recording, so
             a smaller one counts.
-        bic_margin: smallest BIC drop that counts (not asked of a candidate that lowers the held-out error of
+        bic_margin: smallest BIC drop that counts (any drop, for a candidate that lowers the held-out error of
             each of three or more held-out records by `min_gain_records`).
         folds: contiguous blocks of the training rows for cross-validation.
         max_findings: at most this many effects are chosen.
@@ -272,7 +272,7 @@ def select_effects(
             gains = 1.0 - held_c / np.maximum(held, 1e-300)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
             unanimous = kind == "files" and n_folds >= 3 and bool(np.all(gains >= min_gain))
-            if cv_c > (1 - min_gain) * cv or (bic_c - bic > -options.bic_margin and not unanimous):
+            if cv_c > (1 - min_gain) * cv or bic_c - bic > (0.0 if unanimous else -options.bic_margin):
                 continue
             if np.count_nonzero(gains > 0) * 2 <= n_folds:
                 continue  # it must lower the held-out error in most folds, not on average only
@@ -281,14 +281,6 @@ def select_effects(
                 best = (bic_c, cand, kept, rss_c, held_c)
         if best is None:
             break
-        if best[1].effect in FRICTIONLOSS_EFFECTS:  # shapes of one frictionloss (one coefficient each): held-out error
-            shapes = [a for a in admissible if a[1].effect in FRICTIONLOSS_EFFECTS and a[1].target == best[1].target]
-            best = min(shapes, key=lambda a: _fold_mse(a[4], folds, n_folds))
-            ideal = [a for a in shapes if a[1].effect == "coulomb_friction"]  # no width picked from a grid
-            if ideal and _fold_mse(ideal[0][4], folds, n_folds) * (1 - options.native_preference) <= _fold_mse(
-                best[4], folds, n_folds
-            ):
-                best = ideal[0]
         if not best[1].native:  # a shape MuJoCo cannot hold must beat a native alternative clearly
             held_best = _fold_mse(best[4], folds, n_folds)
             ties = [
@@ -298,6 +290,14 @@ def select_effects(
             ]
             if ties:
                 best = min(ties, key=lambda a: a[0])
+        if best[1].effect in FRICTIONLOSS_EFFECTS:  # shapes of one frictionloss (one coefficient each): held-out error
+            shapes = [a for a in admissible if a[1].effect in FRICTIONLOSS_EFFECTS and a[1].target == best[1].target]
+            best = min(shapes, key=lambda a: _fold_mse(a[4], folds, n_folds))
+            ideal = [a for a in shapes if a[1].effect == "coulomb_friction"]  # no width picked from a grid
+            if ideal and _fold_mse(ideal[0][4], folds, n_folds) * (1 - options.native_preference) <= _fold_mse(
+                best[4], folds, n_folds
+            ):
+                best = ideal[0]
         bic_c, cand, kept, rss_c, held_c = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
