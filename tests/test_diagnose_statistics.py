@@ -100,3 +100,29 @@ def test_cross_validation_leaves_a_held_out_records_own_nuisance_at_zero() -> No
     # record 0's own offset (0.3) is unknown when it is held out: its error is that offset, the rest is noise
     assert held[0] == pytest.approx(0.09, rel=0.05)
     assert np.all(held[1:] < 2e-4)
+
+
+def test_the_final_fit_weighs_each_joint_by_what_is_left_on_it() -> None:
+    """A parameter shared by two joints, one of them with a large model error that its noise floor does not show
+    (real logs: a floor of 0.01 N m under a residual of 0.13): weighting by the floor lets that joint decide the
+    parameter; the final fit's feasible GLS weighs by what is left and recovers it from the other joint."""
+    from types import SimpleNamespace
+
+    from dynamics.plant import load_plant
+    from identify.diagnose.diagnosis import _final_fit
+
+    rng = np.random.default_rng(0)
+    n, theta = 4000, 0.5
+    x = rng.normal(size=(n, 2))
+    structured = 0.3 + 0.5 * np.sin(np.linspace(0, 40, n))  # joint 0: a model error correlated with its column
+    residual = theta * x + np.column_stack(
+        [structured * x[:, 0] + 0.01 * rng.normal(size=n), 0.01 * rng.normal(size=n)]
+    )
+    X = x[:, :, None]
+    s = SimpleNamespace(residual=residual, record=np.zeros(n, dtype=int))
+    floor_weights = np.array([1e4, 1.0])  # the floor says joint 0 is the quiet one
+    plant = load_plant("two_link")
+    _, fit = _final_fit(plant, [], X, s, floor_weights, n_nuisance=1)  # type: ignore[arg-type]
+    naive = float(np.sum(floor_weights * x * residual) / np.sum(floor_weights * x * x))
+    assert abs(naive - theta) > 0.05  # the floor-weighted estimate is pulled by joint 0's error
+    assert abs(float(fit.coef[0]) - theta) < 0.01

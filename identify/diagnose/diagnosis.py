@@ -625,19 +625,39 @@ def _record_offset_columns(s: Signals) -> np.ndarray:
     return out
 
 
+_FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle within a few)
+
+
 def _final_fit(
     plant: Plant, steps: list[Step], X: np.ndarray, s: Signals, weights: np.ndarray, n_nuisance: int = 0
 ) -> tuple[np.ndarray, LinearFit]:
     """Joint fit of the chosen columns, with joint offsets and torque gains made exact.
 
-    The selection linearises both; here they are iterated to a fixed point. A joint offset o re-evaluates
-    the nominal torque at q - o (Gauss-Newton on the offset); a gain multiplies the whole true torque, not
-    only the nominal one, so its column is re-made from the nominal torque plus the other fitted effects.
+    The joints are weighted by the variance of what the fit leaves on each (feasible GLS from `weights`,
+    re-weighted until the weights settle): on a simulation that is the sensor noise the selection weighs by,
+    on real logs the model error that remains, several times the noise floor and unequal between joints;
+    weighting by the floor would let the quietest joint decide parameters (link inertias) that every joint's
+    torque depends on.
+
+    The selection linearises joint offsets and torque gains; here they are iterated to a fixed point. A joint
+    offset o re-evaluates the nominal torque at q - o (Gauss-Newton on the offset); a gain multiplies the whole
+    true torque, not only the nominal one, so its column is re-made from the nominal torque plus the other
+    fitted effects.
     At the fixed point measured = gain (nominal(q - offset) + effects) + torque offset holds exactly, as
     in the calibrated model. Every coefficient stays within its candidate's physical range.
     """
     lo, hi = _step_bounds(steps, n_nuisance)
+    total = float(weights.sum())
     fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
+    for _ in range(_FGLS_ITERATIONS):
+        left = np.mean((s.residual - np.einsum("knp,p->kn", X, fit.coef)) ** 2, axis=0)
+        inverse = 1.0 / np.maximum(left, 1e-12 * max(float(left.max()), 1e-300))
+        new = inverse * (total / inverse.sum())  # the same total weight, shared by what is left
+        done = bool(np.all(np.abs(new - weights) <= 1e-3 * weights))
+        weights = new
+        fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
+        if done:
+            break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
     offsets = [
         (int(start[i]), plant.joint_names.index(st.candidate.target))
