@@ -45,7 +45,7 @@ from envs.dataset import Dataset
 from envs.measured import read_many
 from harness.diagnose import record_offsets
 from harness.setup import CONF_DIR
-from identify.derivatives import derive_states
+from identify.derivatives import States, derive_states
 from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model
 from identify.diagnose.authors import author_regressor
 from identify.diagnose.calibrate import mjcf_measured_torque
@@ -65,35 +65,38 @@ def _lowpass(x: np.ndarray, fs: float) -> np.ndarray:
     return signal.sosfiltfilt(sos, x, axis=0)
 
 
-def _judged(data: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """What every model is judged on: time (N,), q, dq, ddq from the 5 Hz zero-phase filter of the angles and
-    the measured torque filtered alike, each (N, nv), on the rows the filter trusts."""
+def _judged_states(data: Dataset) -> tuple[States, np.ndarray]:
+    """(States from the 5 Hz zero-phase filter of the angles, on every row; the measured torque filtered alike,
+    (N_valid, nv), on the rows the filter trusts, `states.valid`)."""
     states = derive_states(data, "butterworth", cutoff_hz=JUDGE_HZ)
+    return states, _lowpass(data.tau, 1.0 / data.dt)[states.valid]
+
+
+def _judged(data: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What every model is judged on: time (N,), q, dq, ddq and the measured torque (`_judged_states`), each
+    (N, nv), on the rows the filter trusts."""
+    states, measured = _judged_states(data)
     rows = states.valid
-    measured = _lowpass(data.tau, 1.0 / data.dt)[rows]
     return data.time[rows], states.q[rows], states.dq[rows], states.ddq[rows], measured
 
 
 def judge(
-    xml_path: Path, authors: dict[str, dict[str, float]], data: Dataset, *, filter_prediction: bool = False
-) -> dict[str, list[float]]:
-    """Per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band.
-
-    Args:
-        filter_prediction: also low-pass each model's torque (the other reading of "zero-phase 5 Hz filtering":
-            both sides filtered, as the diagnosis fits); by default the model is evaluated unfiltered on the
-            filtered states.
-    """
-    states = derive_states(data, "butterworth", cutoff_hz=JUDGE_HZ)
-    rows = states.valid
-    measured = _lowpass(data.tau, 1.0 / data.dt)[rows]
+    xml_path: Path, authors: dict[str, dict[str, float]], data: Dataset
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band, in its two readings: each model
+    evaluated unfiltered on the filtered states, and its torque low-passed as well (both sides filtered, as the
+    diagnosis fits)."""
+    states, measured = _judged_states(data)
+    rows, fs = states.valid, 1.0 / data.dt
     model = mujoco.MjModel.from_xml_path(str(xml_path))
     preds = {"calibrated": mjcf_measured_torque(model, data.time, states.q, states.dq, states.ddq)}
     for name, p in authors.items():
         preds[name] = author_torque(p, states.q, states.dq, states.ddq)
-    if filter_prediction:
-        preds = {k: _lowpass(v, 1.0 / data.dt) for k, v in preds.items()}
-    return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in preds.items()}
+
+    def rms(pred: dict[str, np.ndarray]) -> dict[str, list[float]]:
+        return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in pred.items()}
+
+    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()})
 
 
 def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[list[float]]]:
@@ -166,9 +169,8 @@ def lofo_table(session: str) -> dict[str, Any]:
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"
             path.write_text(dg.calibrated_xml)
-            rms = judge(path, authors, held)
-            both = judge(path, authors, held, filter_prediction=True)
-        rms["nominal"] = judge(nominal_xml, {}, held)["calibrated"]
+            rms, both = judge(path, authors, held)
+        rms["nominal"] = judge(nominal_xml, {}, held)[0]["calibrated"]
         rms["lab_form_others"], rms["lab_form_all"] = refit["others"][k], refit["all"][k]
         best = np.min([rms[a] for a in authors], axis=0)
         splits.append(

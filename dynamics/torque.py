@@ -63,8 +63,9 @@ def joint_torque(
         D[1] += np.diag(plant.damping)
         if coulomb and np.any(plant.friction_speed > 0):  # on a declared ramp: slope Fc / vt
             ramp = plant.friction_speed > 0
-            x = (dq + plant.friction_lead * ddq) / np.where(ramp, plant.friction_speed, 1.0)
-            slope = np.where(ramp & (np.abs(x) < 1), plant.frictionloss / np.where(ramp, plant.friction_speed, 1.0), 0)
+            width = np.where(ramp, plant.friction_speed, 1.0)
+            on_ramp = ramp & (np.abs(dq + plant.friction_lead * ddq) < width)
+            slope = np.where(on_ramp, plant.frictionloss / width, 0.0)
             idx = np.arange(plant.nv)
             D[1][:, idx, idx] += slope
             D[2][:, idx, idx] += slope * plant.friction_lead

@@ -119,7 +119,7 @@ def test_the_final_fit_weighs_each_joint_by_what_is_left_on_it() -> None:
         [structured * x[:, 0] + 0.01 * rng.normal(size=n), 0.01 * rng.normal(size=n)]
     )
     X = x[:, :, None]
-    s = SimpleNamespace(residual=residual, record=np.zeros(n, dtype=int))
+    s = SimpleNamespace(residual=residual, record=np.zeros(n, dtype=int), actuated=np.array([True, True]))
     floor_weights = np.array([1e4, 1.0])  # the floor says joint 0 is the quiet one
     plant = load_plant("two_link")
     _, fit = _final_fit(plant, [], X, s, floor_weights, n_nuisance=1)  # type: ignore[arg-type]

@@ -194,11 +194,11 @@ def test_wls_covariance_uses_the_weights_that_produced_the_estimate() -> None:
     est = estimate("wls", problem, iterations=1)
     # one iteration: the weights come from the OLS residuals; the covariance must be that fit's sandwich
     from identify.estimators.covariance import sandwich, score
-    from identify.estimators.least_squares import _floor, _joint_sigma, _solve
+    from identify.estimators.least_squares import _joint_sigma, _solve, safe_sigma
 
     W, y = problem.W, problem.y
     actuated = np.asarray(data.actuated, bool)
-    weight = 1.0 / _floor(_joint_sigma(W, y, _solve(W, y, np.ones(2))), actuated) ** 2
+    weight = 1.0 / safe_sigma(_joint_sigma(W, y, _solve(W, y, np.ones(2))), actuated) ** 2
     np.testing.assert_allclose(est.beta, _solve(W, y, weight), rtol=1e-12)
     resid = y - np.einsum("knr,r->kn", W, est.beta)
     bread = np.linalg.inv(np.einsum("knr,n,kns->rs", W, weight, W))

@@ -589,13 +589,13 @@ def frictionloss_mapping(
     m0 = mujoco.MjModel.from_xml_path(str(calibrated.path))
     m0.dof_frictionloss[:] = 0.0
     with_f, without = inverse_dynamics(m, q, dq, ddq), inverse_dynamics(m0, q, dq, ddq)
+    declared = friction_shape(dq, ddq, calibrated.friction_speed, calibrated.friction_lead)
     out: dict[str, dict[str, float]] = {}
     for j, name in enumerate(calibrated.joint_names):
         fc = float(m.dof_frictionloss[j])
         if fc <= 0:
             continue
         f_mj = with_f[:, j] - without[:, j]
-        declared = friction_shape(dq, ddq, calibrated.friction_speed, calibrated.friction_lead)
         ideal = fc * declared[:, j]
         under = np.abs(f_mj) < 0.9 * fc
         out[name] = {

@@ -280,7 +280,7 @@ def _joint_effects(plant: Plant) -> list[Candidate]:
 
     def coulomb(s: Signals, j: int) -> np.ndarray:  # the joint's own shape: sign(dq), or the ramp it declares
         speed, lead = plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1]
-        return friction_shape(s.dq[:, j : j + 1], s.ddq[:, j : j + 1], speed, lead)[:, 0]  # type: ignore[no-any-return]
+        return friction_shape(s.dq[:, j : j + 1], s.ddq[:, j : j + 1], speed, lead)[:, 0]
 
     table: list[tuple[str, str, str, str, Callable[[Signals, int], np.ndarray], bool]] = [
         ("armature", "kg m^2", "joint armature", "Ia", lambda s, j: s.ddq[:, j], False),

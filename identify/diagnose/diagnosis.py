@@ -37,6 +37,7 @@ from identify.diagnose.residuals import analyse_residual, noise_floor, residual_
 from identify.diagnose.select import SelectionOptions, Step, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
 from identify.diagnose.statistics import LinearFit
+from identify.estimators.least_squares import safe_sigma
 
 __all__ = ["DEFAULT_EFFECTS", "Diagnosis", "Finding", "ReferenceModel", "diagnose"]
 
@@ -647,13 +648,13 @@ def _final_fit(
     in the calibrated model. Every coefficient stays within its candidate's physical range.
     """
     lo, hi = _step_bounds(steps, n_nuisance)
-    total = float(weights.sum())
     fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
     for _ in range(_FGLS_ITERATIONS):
-        left = np.mean((s.residual - np.einsum("knp,p->kn", X, fit.coef)) ** 2, axis=0)
-        inverse = 1.0 / np.maximum(left, 1e-12 * max(float(left.max()), 1e-300))
-        new = inverse * (total / inverse.sum())  # the same total weight, shared by what is left
-        done = bool(np.all(np.abs(new - weights) <= 1e-3 * weights))
+        left = np.sqrt(np.mean((s.residual - np.einsum("knp,p->kn", X, fit.coef)) ** 2, axis=0))
+        if not np.any(left > 0):
+            break  # an exact fit: nothing to weigh by
+        new = 1.0 / safe_sigma(left, s.actuated) ** 2  # an unactuated joint: at most the best actuated weight
+        done = bool(np.allclose(new / new.sum(), weights / weights.sum(), rtol=1e-3, atol=0))
         weights = new
         fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
         if done:

@@ -17,7 +17,7 @@ from dynamics.errors import RankDeficientError
 from identify.estimators.covariance import sandwich, score
 from identify.problem import Estimate, Problem
 
-__all__ = ["ols", "wls"]
+__all__ = ["ols", "safe_sigma", "wls"]
 
 
 def _solve(W: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -53,7 +53,7 @@ def _joint_sigma(W: np.ndarray, y: np.ndarray, beta: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(resid**2, axis=0) / dof)
 
 
-def _floor(sigma: np.ndarray, actuated: np.ndarray) -> np.ndarray:
+def safe_sigma(sigma: np.ndarray, actuated: np.ndarray) -> np.ndarray:
     """Per-joint noise levels safe to weight by.
 
     An unactuated joint's equation (0 = W_j beta) is homogeneous: its residual comes from errors in the
@@ -94,10 +94,10 @@ def wls(problem: Problem, *, iterations: int = 3) -> Estimate:
         raise ValueError(f"wls needs iterations >= 1, got {iterations}")
     W, y = problem.W, problem.y
     actuated = np.asarray(problem.data.actuated, dtype=bool)
-    sigma = _floor(_joint_sigma(W, y, _solve(W, y, np.ones(W.shape[1]))), actuated)
+    sigma = safe_sigma(_joint_sigma(W, y, _solve(W, y, np.ones(W.shape[1]))), actuated)
     for _ in range(iterations):
         weight = 1.0 / sigma**2
         beta = _solve(W, y, weight)
-        sigma = _floor(_joint_sigma(W, y, beta), actuated)
+        sigma = safe_sigma(_joint_sigma(W, y, beta), actuated)
     cov, info = _covariance(W, y, beta, weight)
     return Estimate("wls", problem.names, beta, cov, sigma, {"iterations": iterations, "covariance": info})
