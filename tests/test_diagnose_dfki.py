@@ -87,6 +87,19 @@ def test_no_finding_on_real_data_is_outside_its_physical_range(payload: dict) ->
             assert 0.7 <= f["value"] <= 1.3, f
 
 
+@pytest.mark.slow
+def test_offset_like_rigid_body_columns_left_at_nominal_are_reported(payload: dict) -> None:
+    """On these four files the lateral first moments act as shoulder offsets that do not carry over to the
+    held-out files (tests/test_diagnose_offset_like.py has the mechanism on simulated records): the rigid-body
+    finding leaves them at nominal, does not list them among its fitted parameters, and a note says why."""
+    rigid = [f for f in payload["findings"] if f["effect"] == "rigid_body"]
+    assert rigid, [f["effect"] for f in payload["findings"]]
+    held = rigid[0]["held_nominal"]
+    assert held == ["d(MX1)", "d(MX2)"]
+    assert not set(held) & {p["name"] for p in rigid[0]["parameters"]}
+    assert any("left at nominal" in n and "d(MX1)" in n for n in payload["notes"]), payload["notes"]
+
+
 def test_c1_config_reads_the_rebuild_with_the_same_nominal_model(shared_data: Path) -> None:
     """design C.1 is diagnosed against `two_link` (the same documented design); its config reads every shared
     file, holds one out by name and carries the lab's models for this build."""

@@ -95,6 +95,8 @@ class Finding:
             of its column left unexplained by the alternative (0: indistinguishable).
         separate_by: the motion that would separate it from those alternatives.
         note: how the calibrated MJCF holds it where MuJoCo has no attribute for it.
+        held_nominal: parameters of the effect left at their nominal values: offset-like rigid-body columns
+            whose refit raised the held-out error (`identify.diagnose.select`).
     """
 
     effect: str
@@ -111,6 +113,7 @@ class Finding:
     confounded_with: list[dict[str, Any]] = field(default_factory=list)
     separate_by: str = ""
     note: str = ""
+    held_nominal: list[str] = field(default_factory=list)
 
     @property
     def name(self) -> str:
@@ -138,6 +141,7 @@ class Finding:
             "confounded_with": self.confounded_with,
             "separate_by": self.separate_by or None,
             "note": self.note or None,
+            "held_nominal": self.held_nominal,
         }
 
 
@@ -441,7 +445,14 @@ def diagnose(
                 {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
             ],
         },
-        notes=[a.describe() for a in anomalies] + list(ext.notes),
+        notes=[a.describe() for a in anomalies]
+        + [
+            f"{s.candidate.effect}: {', '.join(s.held_nominal)} left at nominal: on these records they act as torque "
+            "offsets, and refitting them raised the error on the records held out in turn"
+            for s in steps
+            if s.held_nominal
+        ]
+        + list(ext.notes),
         series=series,
         remaining=remaining,
         anomalies=[a.to_dict() for a in anomalies],
@@ -780,6 +791,7 @@ def _findings(
                 at_bound=at_bound,
                 fold_gains=[float(g) for g in s.fold_gains],
                 note=s.candidate.note,
+                held_nominal=list(s.held_nominal),
             )
         )
         offset += k

@@ -15,6 +15,14 @@ data), except between the shapes of one joint's frictionloss (ideal Coulomb and 
 coefficient each): the one with the lowest held-out error is taken, and a ramp only where it beats the ideal
 shape by `native_preference` (its width is a choice from a grid). Columns that the chosen ones already span are dropped.
 
+Where records are held out in turn, the rigid-body refit's columns that a constant torque on the joints could
+largely stand in for on these data (less than `offset_independence` of their norm outside the span of the
+joints' constant columns: at small angles a lateral first moment, g MX cos(q), is nearly a torque offset) are
+refitted only if they lower the held-out error; otherwise they stay at their nominal values, together, and the
+finding says so (`Step.held_nominal`). A sensor offset that changes between power-ups fits as such a first
+moment on the training records and transfers to none of the others; a real mass offset lowers the held-out
+error too and is kept.
+
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
 counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
 time (`statistics.correlation_time`): a band-limited residual at 4 Hz sampled at 500 Hz has about one
@@ -51,6 +59,9 @@ class SelectionOptions:
         min_z: smallest |value| / std of a chosen effect's headline value.
         min_delay_samples: smallest |time delay| named, in sample intervals: below it a delay is within the
             log's timing conventions (zero-order hold, time stamps, the simulator's half-step) [1].
+        offset_independence: a rigid-body column with less than this share of its norm outside the span of
+            constant joint torques (offset-like on these data) is refitted only where that lowers the held-out
+            error of records held out in turn; otherwise it stays nominal (see the module docstring).
         min_independence: smallest share of a candidate's headline column (in norm) that the effects
             already chosen do not explain; below it the candidate is confounded with them and its value
             would only trade off against theirs, so it is not named.
@@ -73,9 +84,10 @@ class SelectionOptions:
     confound_independence: float = 0.3
     native_preference: float = 0.1
     min_delay_samples: float = 0.5
+    offset_independence: float = 0.9
 
     def __post_init__(self) -> None:
-        for name in ("min_gain", "min_gain_records"):
+        for name in ("min_gain", "min_gain_records", "offset_independence"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"{name} must lie in [0, 1), got {getattr(self, name)}")
         if self.folds < 2:
@@ -93,6 +105,8 @@ class Step:
         cv_mse_before, cv_mse_after: held-out weighted torque MSE before and after [1] (weighted units).
         fold_gains: (folds,) relative drop of the held-out MSE in each fold (1 - after / before).
         folds: what the folds were (`files`: one record held out in turn; `blocks`: time blocks).
+        held_nominal: names of the candidate's offset-like columns left at their nominal values because
+            refitting them raised the held-out error (rigid body only; see the module docstring).
     """
 
     candidate: Candidate
@@ -102,6 +116,7 @@ class Step:
     cv_mse_after: float
     fold_gains: np.ndarray = field(default_factory=lambda: np.zeros(0))
     folds: str = "blocks"
+    held_nominal: tuple[str, ...] = ()
 
 
 def _flat(X: np.ndarray, sw: np.ndarray) -> np.ndarray:
@@ -185,6 +200,16 @@ def _scores(
     return max(rss, 0.0), held
 
 
+def _offset_like(cols: np.ndarray, kept: list[int], sw: np.ndarray, actuated: np.ndarray, share: float) -> list[int]:
+    """The kept columns with less than `share` of their norm outside the span of constant joint torques."""
+    n, nv = cols.shape[:2]
+    const = np.zeros((n, nv, nv))
+    for j in np.flatnonzero(actuated):
+        const[:, j, j] = 1.0
+    basis = np.linalg.qr(_flat(const[:, :, np.flatnonzero(actuated)], sw))[0]
+    return [c for c in kept if _independence(basis, _flat(cols[:, :, c : c + 1], sw)[:, 0]) < share]
+
+
 def _bic(rss: float, n_obs: int, n_eff: float, p: int) -> float:
     """BIC with the effective sample size: the log-likelihood counts n_eff independent samples."""
     return n_eff * np.log(max(rss, 1e-300) / n_obs) + p * np.log(n_eff)
@@ -200,6 +225,37 @@ def _shares_frictionloss(cand: Candidate, chosen: list[Step]) -> bool:
     return cand.effect in FRICTIONLOSS_EFFECTS and any(
         s.candidate.effect in FRICTIONLOSS_EFFECTS and s.candidate.target == cand.target for s in chosen
     )
+
+
+def _without_offset_like(
+    X: np.ndarray,
+    cols: np.ndarray,
+    kept: list[int],
+    cand: Candidate,
+    sw: np.ndarray,
+    actuated: np.ndarray,
+    b: np.ndarray,
+    folds: np.ndarray,
+    n_folds: int,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    share: float,
+) -> tuple[list[int], tuple[str, ...]]:
+    """(kept columns, names left nominal): the offset-like columns (`_offset_like`) are dropped, together, where
+    the fit without them has a held-out MSE no higher than with them (see the module docstring)."""
+    group = _offset_like(cols, kept, sw, actuated, share)
+    rest = [c for c in kept if c not in group]
+    if not group or not rest:
+        return kept, ()
+
+    def held_out(k: list[int]) -> float:
+        A = _flat(np.concatenate([X, cols[:, :, k]], axis=2), sw)
+        lo_c, hi_c = np.concatenate([lo, cand.lower[k]]), np.concatenate([hi, cand.upper[k]])
+        return _fold_mse(_scores(A, b, folds, n_folds, lo_c, hi_c)[1], folds, n_folds)
+
+    if held_out(rest) > held_out(kept):
+        return kept, ()
+    return rest, tuple(cand.parameter_names[c] for c in group)
 
 
 def select_effects(
@@ -251,8 +307,8 @@ def select_effects(
     n_eff = n_obs / correlation_time(e.reshape(n, nv), row_record)
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
     while len(chosen) < options.max_findings:
-        best: tuple[float, Candidate, list[int], float, np.ndarray] | None = None
-        admissible: list[tuple[float, Candidate, list[int], float, np.ndarray]] = []
+        best: tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]] | None = None
+        admissible: list[tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]] = []
         for cand in pool:
             if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
                 continue
@@ -265,6 +321,11 @@ def select_effects(
                 and _independence(basis, _flat(cols[:, :, :1], sw)[:, 0]) < options.min_independence
             ):
                 continue  # confounded with what is already chosen
+            held_nominal: tuple[str, ...] = ()
+            if cand.effect == "rigid_body" and kind == "files":
+                kept, held_nominal = _without_offset_like(
+                    X, cols, kept, cand, sw, train.actuated, b, folds, n_folds, lo, hi, options.offset_independence
+                )
             A = _flat(np.concatenate([X, cols[:, :, kept]], axis=2), sw)
             lo_c, hi_c = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
             rss_c, held_c = _scores(A, b, folds, n_folds, lo_c, hi_c)
@@ -276,9 +337,9 @@ def select_effects(
                 continue
             if np.count_nonzero(gains > 0) * 2 <= n_folds:
                 continue  # it must lower the held-out error in most folds, not on average only
-            admissible.append((bic_c, cand, kept, rss_c, held_c))
+            admissible.append((bic_c, cand, kept, rss_c, held_c, held_nominal))
             if best is None or bic_c < best[0]:
-                best = (bic_c, cand, kept, rss_c, held_c)
+                best = (bic_c, cand, kept, rss_c, held_c, held_nominal)
         if best is None:
             break
         if not best[1].native:  # a shape MuJoCo cannot hold must beat a native alternative clearly
@@ -298,7 +359,7 @@ def select_effects(
                 best[4], folds, n_folds
             ):
                 best = ideal[0]
-        bic_c, cand, kept, rss_c, held_c = best
+        bic_c, cand, kept, rss_c, held_c, held_nominal = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
         fit = fit_columns(X_new, train.residual, weights, lower=lo_new, upper=hi_new, record=row_record)
@@ -313,7 +374,7 @@ def select_effects(
             continue
         cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
         gains = 1.0 - held_c / np.maximum(held, 1e-300)
-        chosen.append(Step(cand, np.array(kept), float(bic_c - bic), cv, cv_c, gains, kind))
+        chosen.append(Step(cand, np.array(kept), float(bic_c - bic), cv, cv_c, gains, kind, held_nominal))
         X, lo, hi = X_new, lo_new, hi_new
         q, _ = np.linalg.qr(_flat(X, sw))
         basis, bic, rss, held = q, bic_c, rss_c, held_c
