@@ -269,6 +269,8 @@ def main(parts: tuple[str, ...] = ("hidden", "lofo")) -> None:
     with overrides the leave-one-file-out splits are run and summarised on stdout, and no file is written (the
     tables in bench/ stay those of the defaults)."""
     overrides = tuple(p for p in parts if "=" in p)
+    if overrides and "hidden" in parts:
+        raise SystemExit("overrides apply to the real-data splits only: run `python -m bench.diagnose lofo KEY=VALUE`")
     if overrides:
         if not SHARED.is_dir():
             raise SystemExit(f"the real-data splits need {SHARED}, which is absent")

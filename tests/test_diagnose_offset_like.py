@@ -10,20 +10,24 @@ shoulder offsets and white sensor noise.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from dynamics.plant import Plant, load_plant
+from dynamics.plant import INERTIAL_SYMBOLS, Plant, load_plant, plant_from_xml
 from dynamics.regressor import rigid_body_regressor
 from dynamics.torque import joint_torque
+from envs.dataset import Dataset
+from identify.diagnose import diagnose
 from identify.diagnose.candidates import Candidate, Signals, candidates, stack_signals
 from identify.diagnose.select import SelectionOptions, _offset_like, select_effects
 
 SIGMA = 0.005  # torque noise [N m]
 
 
-def _record(plant: Plant, rng: np.random.Generator, record: int) -> tuple[Signals, np.ndarray]:
-    """Signals of an 8 s small-angle motion at 100 Hz (tau still nominal) and its (N, nv, p) base columns."""
+def _record(plant: Plant, rng: np.random.Generator, record: int) -> Signals:
+    """Signals of an 8 s small-angle motion at 100 Hz (tau still nominal)."""
     t = np.arange(0.0, 8.0, 0.01)
     q, dq, ddq = (np.zeros((len(t), plant.nv)) for _ in range(3))
     for j in range(plant.nv):
@@ -47,7 +51,7 @@ def _record(plant: Plant, rng: np.random.Generator, record: int) -> tuple[Signal
         record=np.full(len(t), record),
         actuated=np.asarray(plant.actuated, dtype=bool),
     )
-    return s, s.regressor
+    return s
 
 
 def _train(offsets: list[float], change: dict[str, float], seed: int) -> tuple[Signals, list[Candidate]]:
@@ -61,7 +65,7 @@ def _train(offsets: list[float], change: dict[str, float], seed: int) -> tuple[S
         delta[rigid.parameter_names.index(name)] = value
     parts = []
     for r, off in enumerate(offsets):
-        s, _ = _record(plant, rng, r)
+        s = _record(plant, rng, r)
         tau = s.tau_nominal + rigid.build(s) @ delta + rng.normal(0.0, SIGMA, s.tau.shape)
         tau[:, 0] += off
         parts.append(Signals(**{**s.__dict__, "tau": tau}))
@@ -102,3 +106,59 @@ def test_a_real_lateral_mass_offset_is_refitted(seed: int) -> None:
     step = _rigid_step([0.0, 0.0, 0.0, 0.0], {**ALONG_LINK, "d(MX1)": 0.01}, seed)
     assert step.held_nominal == ()
     assert "d(MX1)" in {step.candidate.parameter_names[c] for c in step.kept}
+
+
+def test_a_single_record_keeps_every_column() -> None:
+    """With one training record the folds are time blocks of it, over which a sensor offset does not change:
+    the rule does not apply."""
+    train, pool = _train([0.08], ALONG_LINK, 0)
+    steps, _ = select_effects(pool, train, np.full(2, 1.0 / SIGMA**2), SelectionOptions())
+    rigid = [s for s in steps if s.candidate.effect == "rigid_body"]
+    assert all(s.held_nominal == () for s in rigid)
+
+
+def test_no_actuated_joint_has_no_offset_like_column() -> None:
+    train, pool = _train([0.0], {}, 0)
+    cols = train.columns(next(c for c in pool if c.effect == "rigid_body"))
+    assert _offset_like(cols, list(range(cols.shape[2])), np.ones(2), np.zeros(2, dtype=bool), 0.9) == []
+
+
+@pytest.mark.parametrize("share", [-0.1, 1.0])
+def test_offset_independence_outside_its_range_is_refused(share: float) -> None:
+    with pytest.raises(ValueError, match="offset_independence"):
+        SelectionOptions(offset_independence=share)
+
+
+def test_the_calibrated_mjcf_keeps_the_nominal_lateral_moments_and_says_why(tmp_path: Path) -> None:
+    """Through `diagnose`: four training records with their own shoulder offsets and a held-out one; the
+    rigid-body finding lists the columns left nominal, a note says why, and the calibrated MJCF's link 1 and 2
+    have the nominal lateral first moments while link 2's mass change along the link is fitted."""
+    plant = load_plant("two_link")
+    rng = np.random.default_rng(3)
+    rigid = next(c for c in candidates(plant, ["rigid_body"], np.random.default_rng(0)) if c.effect == "rigid_body")
+    delta = np.zeros(len(rigid.parameter_names))
+    for name, value in ALONG_LINK.items():
+        delta[rigid.parameter_names.index(name)] = value
+    records = []
+    for r, off in enumerate([0.08, -0.06, 0.07, -0.08, 0.05]):
+        s = _record(plant, rng, r)
+        tau = s.tau_nominal + rigid.build(s) @ delta + rng.normal(0.0, SIGMA, s.tau.shape)
+        tau[:, 0] += off
+        records.append(Dataset(s.time, s.q, tau, plant.joint_names, np.asarray(plant.actuated), dq=s.dq, ddq=s.ddq))
+    dg = diagnose(
+        plant,
+        records[:4],
+        records[4:],
+        rng=np.random.default_rng(0),
+        effects=("rigid_body", "torque_offset", "viscous_friction"),
+        derivatives="given",
+    )
+    found = [f for f in dg.findings if f.effect == "rigid_body"]
+    assert found and found[0].held_nominal == ["d(MX1)", "d(MX2)"], [f.to_dict() for f in dg.findings]
+    assert any("not refitted" in n and "d(MX1), d(MX2)" in n for n in dg.notes), dg.notes
+    calibrated = plant_from_xml(dg.calibrated_xml, "calibrated", tmp_path)
+    mx = INERTIAL_SYMBOLS.index("MX")
+    for link in range(2):
+        assert calibrated.theta[10 * link + mx] == pytest.approx(plant.theta[10 * link + mx], abs=1e-9)
+    mz2 = 10 + INERTIAL_SYMBOLS.index("MZ")
+    assert calibrated.theta[mz2] - plant.theta[mz2] == pytest.approx(ALONG_LINK["d(MZ2)"], rel=0.1)

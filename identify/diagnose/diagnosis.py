@@ -96,7 +96,7 @@ class Finding:
         separate_by: the motion that would separate it from those alternatives.
         note: how the calibrated MJCF holds it where MuJoCo has no attribute for it.
         held_nominal: parameters of the effect left at their nominal values: offset-like rigid-body columns
-            whose refit raised the held-out error (`identify.diagnose.select`).
+            whose refit did not lower the held-out error (`identify.diagnose.select`).
     """
 
     effect: str
@@ -447,8 +447,8 @@ def diagnose(
         },
         notes=[a.describe() for a in anomalies]
         + [
-            f"{s.candidate.effect}: {', '.join(s.held_nominal)} left at nominal: on these records they act as torque "
-            "offsets, and refitting them raised the error on the records held out in turn"
+            f"{s.candidate.effect}: {', '.join(s.held_nominal)} not refitted (nominal): on these records they act "
+            "much as torque offsets, and refitting them did not lower the error on the records held out in turn"
             for s in steps
             if s.held_nominal
         ]

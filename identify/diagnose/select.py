@@ -15,13 +15,15 @@ data), except between the shapes of one joint's frictionloss (ideal Coulomb and 
 coefficient each): the one with the lowest held-out error is taken, and a ramp only where it beats the ideal
 shape by `native_preference` (its width is a choice from a grid). Columns that the chosen ones already span are dropped.
 
-Where records are held out in turn, the rigid-body refit's columns that a constant torque on the joints could
-largely stand in for on these data (less than `offset_independence` of their norm outside the span of the
-joints' constant columns: at small angles a lateral first moment, g MX cos(q), is nearly a torque offset) are
-refitted only if they lower the held-out error; otherwise they stay at their nominal values, together, and the
-finding says so (`Step.held_nominal`). A sensor offset that changes between power-ups fits as such a first
-moment on the training records and transfers to none of the others; a real mass offset lowers the held-out
-error too and is kept.
+Where records are held out in turn, the rigid-body refit's columns that a constant torque on the joints
+partly stands in for on these data (less than `offset_independence` of their norm outside the span of the
+joints' constant columns, i.e. a constant accounts for more than a fifth of their energy at 0.9: at small angles
+a lateral first moment, g MX cos(q), is nearly a torque offset) are refitted only where that lowers the held-out
+error; where it does not, they stay at their nominal values, together, and the finding says so
+(`Step.held_nominal`). A sensor offset that changes between power-ups fits as such a first moment on the
+training records and transfers to none of the others; a real mass offset lowers the held-out error too and is
+kept. Where every column the refit has left is offset-like there is nothing to compare them with: the candidate
+is then judged, as every candidate is, by its own held-out gain against no refit.
 
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
 counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
@@ -61,7 +63,8 @@ class SelectionOptions:
             log's timing conventions (zero-order hold, time stamps, the simulator's half-step) [1].
         offset_independence: a rigid-body column with less than this share of its norm outside the span of
             constant joint torques (offset-like on these data) is refitted only where that lowers the held-out
-            error of records held out in turn; otherwise it stays nominal (see the module docstring).
+            error of records held out in turn; otherwise it stays nominal (see the module docstring). 0 turns
+            the rule off (no column has a negative share).
         min_independence: smallest share of a candidate's headline column (in norm) that the effects
             already chosen do not explain; below it the candidate is confounded with them and its value
             would only trade off against theirs, so it is not named.
@@ -100,13 +103,13 @@ class Step:
 
     Attributes:
         candidate: the effect.
-        kept: indices of its columns that were not already spanned.
+        kept: indices of its columns that were not already spanned (and not in `held_nominal`).
         delta_bic: change of the BIC when it was added.
         cv_mse_before, cv_mse_after: held-out weighted torque MSE before and after [1] (weighted units).
         fold_gains: (folds,) relative drop of the held-out MSE in each fold (1 - after / before).
         folds: what the folds were (`files`: one record held out in turn; `blocks`: time blocks).
         held_nominal: names of the candidate's offset-like columns left at their nominal values because
-            refitting them raised the held-out error (rigid body only; see the module docstring).
+            refitting them did not lower the held-out error (rigid body only; see the module docstring).
     """
 
     candidate: Candidate
@@ -202,6 +205,8 @@ def _scores(
 
 def _offset_like(cols: np.ndarray, kept: list[int], sw: np.ndarray, actuated: np.ndarray, share: float) -> list[int]:
     """The kept columns with less than `share` of their norm outside the span of constant joint torques."""
+    if not np.any(actuated):
+        return []  # no measured torque, no offset to stand in for
     n, nv = cols.shape[:2]
     const = np.zeros((n, nv, nv))
     for j in np.flatnonzero(actuated):
