@@ -380,7 +380,8 @@ def _summary(payload: dict[str, Any]) -> str:
         std = f["std"] if f["std"] is not None else float("nan")
         bound = f" (at its {f['at_bound']} bound)" if f.get("at_bound") else ""
         alts = "".join(f" or {c['effect']} {c['target']}".rstrip() for c in f.get("confounded_with", []))
-        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {std:.2g} {f['unit']}{bound}{alts}")
+        held = f" ({', '.join(f['held_nominal'])} nominal)" if f.get("held_nominal") else ""
+        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {std:.2g} {f['unit']}{bound}{alts}{held}")
     for model, m in payload["models"].items():
         tau = ", ".join(f"{j} {v:.4f}" for j, v in m["torque_rms"].items())
         sim = ", ".join(f"{j} {v:.4f}" for j, v in m.get("simulation_error", {}).items())

@@ -98,6 +98,7 @@ def test_offset_like_rigid_body_columns_left_at_nominal_are_reported(payload: di
     assert held == ["d(MX1)", "d(MX2)"]
     assert not set(held) & {p["name"] for p in rigid[0]["parameters"]}
     assert any("not refitted" in n and "d(MX1)" in n for n in payload["notes"]), payload["notes"]
+    assert "rigid_body" in cli._summary(payload) and "(d(MX1), d(MX2) nominal)" in cli._summary(payload)
 
 
 def test_c1_config_reads_the_rebuild_with_the_same_nominal_model(shared_data: Path) -> None:
