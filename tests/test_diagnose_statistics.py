@@ -126,3 +126,26 @@ def test_the_final_fit_weighs_each_joint_by_what_is_left_on_it() -> None:
     naive = float(np.sum(floor_weights * x * residual) / np.sum(floor_weights * x * x))
     assert abs(naive - theta) > 0.05  # the floor-weighted estimate is pulled by joint 0's error
     assert abs(float(fit.coef[0]) - theta) < 0.01
+
+
+def test_record_means_that_differ_are_named_and_band_limited_noise_is_not() -> None:
+    """`changing_offsets`: each record's mean is judged against its own noise with the autocorrelation time of
+    band-limited residuals (4 Hz at 500 Hz: about one independent sample in sixty). Over 200 sets of four records
+    of pure band-limited noise no joint is named (alpha = 1e-3); offsets of +-0.03 N m on one joint are."""
+    from identify.diagnose.residuals import changing_offsets
+
+    rng = np.random.default_rng(0)
+    n, records = 2000, 4
+    record = np.repeat(np.arange(records), n)
+    names, actuated, floor = ("a", "b"), np.array([True, True]), np.array([0.01, 0.01])
+    sources = [f"r{i}" for i in range(records)]
+    false = 0
+    for _ in range(200):
+        e = np.concatenate([_band_limited(rng, (n, 2), 0.05) for _ in range(records)])
+        false += len(changing_offsets(e, record, names, actuated, floor, sources))
+    assert false == 0
+    e = np.concatenate([_band_limited(rng, (n, 2), 0.05) for _ in range(records)])
+    e[:, 0] += np.repeat([0.03, -0.03, 0.02, -0.02], n)
+    (found,) = changing_offsets(e, record, names, actuated, floor, sources)
+    assert found["joint"] == "a" and found["spread"] > 0.04
+    assert changing_offsets(e[:n], record[:n], names, actuated, floor, sources[:1]) == []

@@ -151,3 +151,48 @@ def test_band_filtered_torques_of_every_validation_record_are_exposed() -> None:
         assert rec[key].shape == (n, 1)
     rms = float(np.sqrt(np.mean((rec["tau_measured"] - rec["tau_calibrated"]) ** 2)))
     assert rms == pytest.approx(dg.models["calibrated"]["torque_rms"]["swing"], rel=1e-9)
+
+
+def _several_records(system: str, per_record: list[list[Injected]], validation: list[Injected]) -> Diagnosis:
+    """Trained on one 6 s record per entry of `per_record` (each its own multi-sine and effects), validated on
+    a 4 s record with `validation`."""
+    from identify.diagnose import diagnose
+
+    rngs = np.random.default_rng(5).spawn(len(per_record) + 1)
+    train = []
+    for i, effects in enumerate(per_record):
+        plant, data = rollout(system, effects, rng=rngs[i], duration_s=6.0, source=f"train_{i}")
+        train.append(data)
+    _, val = rollout(system, validation, rng=rngs[-1], duration_s=4.0, source="validation")
+    return diagnose(plant, train, [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0})
+
+
+@pytest.mark.parametrize(
+    "system", ["pendulum", "two_link", "wheel_pendulum", pytest.param("arm3", marks=pytest.mark.slow)]
+)
+def test_clean_data_of_several_records_has_no_discrepancy(system: str) -> None:
+    """Records held out in turn (the selection's leave-one-record-out folds, the offset-like rule and the
+    between-record offset check all run): clean data still give nothing."""
+    dg = _several_records(system, [[], [], []], [])
+    assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])
+    assert not dg.findings and not dg.info["changing_offsets"]
+
+
+def test_a_torque_zero_that_changes_between_records_is_structure_that_is_named() -> None:
+    """A torque sensor re-zeroed at every power-up (shoulder offsets of +0.08, -0.05, +0.06 N m): no parameter set
+    predicts the next record's offset, so the verdict is `unexplained_structure`, the spread is named with the
+    records' means, and a note points to record_offsets. The same offset in every record is an effect instead."""
+    offsets = [0.08, -0.05, 0.06]
+    dg = _several_records(
+        "two_link",
+        [[Injected("torque_offset", "shoulder", o)] for o in offsets],
+        [Injected("torque_offset", "shoulder", 0.03)],
+    )
+    assert dg.verdict == "unexplained_structure", dg.verdict_reason
+    (drift,) = dg.info["changing_offsets"]
+    assert drift["joint"] == "shoulder"
+    np.testing.assert_allclose(drift["means"], offsets, atol=0.01)
+    assert any("record_offsets=true" in n and n.startswith("shoulder") for n in dg.notes), dg.notes
+    same = _several_records("two_link", [[Injected("torque_offset", "shoulder", 0.06)]] * 3, [])
+    assert not same.info["changing_offsets"]
+    assert same.findings and ("torque_offset", "shoulder") in _names(same)

@@ -33,7 +33,13 @@ from identify.diagnose.calibrate import (
     predict_measured_torque,
 )
 from identify.diagnose.candidates import Candidate, Signals, candidates, signals, stack_signals
-from identify.diagnose.residuals import analyse_residual, noise_floor, residual_signature, whiteness
+from identify.diagnose.residuals import (
+    analyse_residual,
+    changing_offsets,
+    noise_floor,
+    residual_signature,
+    whiteness,
+)
 from identify.diagnose.select import SelectionOptions, Step, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
 from identify.diagnose.statistics import LinearFit
@@ -357,6 +363,9 @@ def diagnose(
     m = nuisance.shape[2]
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
     X, fit = _final_fit(plant, steps, X, s_tr, weights, m)
+    sources = [r.data.source for r in tr]
+    left_tr = s_tr.residual - np.einsum("knp,p->kn", X, fit.coef)
+    drift = [] if m else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources)
     offsets_by_record = fit.coef[:m].reshape(len(tr), -1) if m else np.zeros((0, plant.nv))
     if m:
         full = np.zeros((len(tr), plant.nv))
@@ -415,7 +424,7 @@ def diagnose(
     white_nom = whiteness(s_va.residual, sigma, fs)
     left = s_va.smooth(s_va.tau - preds["calibrated"])
     white_cal = whiteness(left, sigma, fs)
-    verdict, reason = _verdict(findings, s_va, preds, weights, white_nom, white_cal, plant.actuated)
+    verdict, reason = _verdict(findings, s_va, preds, weights, white_nom, white_cal, plant.actuated, drift)
     remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
     return Diagnosis(
         system=plant.name,
@@ -444,6 +453,7 @@ def diagnose(
             "record_offsets": [
                 {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
             ],
+            "changing_offsets": drift,
         },
         notes=[a.describe() for a in anomalies]
         + [
@@ -452,12 +462,23 @@ def diagnose(
             for s in steps
             if s.held_nominal
         ]
+        + [
+            f"{d['joint']}: the training records' mean torque residuals differ by {d['spread']:.3g} N m "
+            f"({min(d['means']):+.3g} to {max(d['means']):+.3g}; p {_p_text(d['p_value'])} against their noise): "
+            "a torque zero that changes between recordings (re-zeroed at power-up) or a load that does; no model "
+            "predicts it on another record (diagnose.record_offsets=true fits one per record as a nuisance)"
+            for d in drift
+        ]
         + list(ext.notes),
         series=series,
         remaining=remaining,
         anomalies=[a.to_dict() for a in anomalies],
         verdict_reason=reason,
     )
+
+
+def _p_text(p: float) -> str:
+    return f"= {p:.1g}" if p >= 1e-12 else "< 1e-12"
 
 
 def _verdict(
@@ -468,6 +489,7 @@ def _verdict(
     white_nom: list[dict[str, Any]],
     white_cal: list[dict[str, Any]],
     actuated: np.ndarray,
+    drift: Sequence[dict[str, Any]] = (),
 ) -> tuple[str, str]:
     """The verdict from the residual that is left on the validation records.
 
@@ -477,7 +499,28 @@ def _verdict(
       found does not lower the held-out error), or in the calibrated one;
     - `no_discrepancy`: nothing found and the nominal residual is white within the noise.
     Unactuated joints count where their residual is structured: a passive joint's torque must be zero.
+    Training records whose mean residual differs beyond their noise (`drift`, from
+    `residuals.changing_offsets`) are structure too: no parameter set removes it, whatever the validation shows.
     """
+    verdict, reason = _verdict_on_validation(findings, s_va, preds, weights, white_nom, white_cal)
+    if drift:
+        joints = ", ".join(f"{d['joint']} ({d['spread']:.3g} N m)" for d in drift)
+        return "unexplained_structure", (
+            f"{reason}; and the mean torque residual differs between the training records on {joints}: a torque "
+            "zero or load that changes between recordings (see `notes`)"
+        )
+    return verdict, reason
+
+
+def _verdict_on_validation(
+    findings: list[Finding],
+    s_va: Signals,
+    preds: dict[str, np.ndarray],
+    weights: np.ndarray,
+    white_nom: list[dict[str, Any]],
+    white_cal: list[dict[str, Any]],
+) -> tuple[str, str]:
+    """`_verdict`'s rules on the validation records alone."""
     meas = s_va.smooth(s_va.tau)
 
     def mse(pred: np.ndarray) -> float:

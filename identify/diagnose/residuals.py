@@ -10,8 +10,9 @@ import numpy as np
 from scipy import signal, stats
 
 from identify.diagnose.candidates import COGGING_HARMONICS, Signals
+from identify.diagnose.statistics import correlation_time
 
-__all__ = ["analyse_residual", "noise_floor", "residual_signature", "whiteness"]
+__all__ = ["analyse_residual", "changing_offsets", "noise_floor", "residual_signature", "whiteness"]
 
 
 def noise_floor(tau: np.ndarray) -> np.ndarray:
@@ -23,6 +24,64 @@ def noise_floor(tau: np.ndarray) -> np.ndarray:
     d3 = np.diff(tau, 3, axis=0)
     mad = np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0) * 1.4826
     return np.minimum(np.std(d3, axis=0), np.where(mad > 0, mad, np.inf)) / np.sqrt(20.0)
+
+
+def changing_offsets(
+    e: np.ndarray,
+    record: np.ndarray,
+    names: tuple[str, ...],
+    actuated: np.ndarray,
+    floor: np.ndarray,
+    sources: list[str],
+    *,
+    alpha: float = 1e-3,
+) -> list[dict[str, Any]]:
+    """Joints whose residual has a different mean in each record: a torque zero that changes between
+    recordings (a sensor re-zeroed at power-up), or a load that does.
+
+    Per actuated joint, the records' mean residuals are compared with what their noise allows: each mean's
+    std is the record's residual std times sqrt(tau_int / n) (tau_int the residual's integrated
+    autocorrelation time within the records), and the spread is named where the chi-square of the means about
+    their weighted mean has a p-value below `alpha` and the means span at least the torque noise floor.
+
+    Args:
+        e: (N, nv) residual left by the fit, in the analysis band.
+        record: (N,) record index of each row (0 .. R-1).
+        names: (nv,) joint names; actuated: (nv,) bool; floor: (nv,) torque noise std [N m].
+        sources: (R,) where each record came from.
+
+    Returns:
+        One dict per such joint: joint, per-record `means` [N m] (with their `sources`), `spread` [N m],
+        `p_value`; empty with fewer than two records.
+    """
+    records = np.unique(record)
+    if len(records) < 2:
+        return []
+    out: list[dict[str, Any]] = []
+    for j in np.flatnonzero(actuated):
+        tau = correlation_time(e[:, j], record)
+        means, sds = [], []
+        for r in records:
+            x = e[record == r, j]
+            means.append(float(x.mean()))
+            sds.append(float(x.std()) * np.sqrt(tau / len(x)) + 1e-300)
+        m, sd = np.array(means), np.array(sds)
+        w = 1.0 / sd**2
+        centre = float(np.sum(w * m) / np.sum(w))
+        chi2 = float(np.sum(((m - centre) / sd) ** 2))
+        p = float(stats.chi2.sf(chi2, len(records) - 1))
+        spread = float(m.max() - m.min())
+        if p < alpha and spread >= floor[j]:
+            out.append(
+                {
+                    "joint": names[j],
+                    "means": [round(v, 6) for v in means],
+                    "sources": [sources[int(r)] for r in records],
+                    "spread": spread,
+                    "p_value": p,
+                }
+            )
+    return out
 
 
 def whiteness(
