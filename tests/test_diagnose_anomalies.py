@@ -7,7 +7,7 @@ import pytest
 
 from envs.dataset import Dataset
 from identify.diagnose.anomalies import find_anomalies
-from identify.diagnose.diagnosis import Finding, _verdict
+from identify.diagnose.diagnosis import Finding, _verdict, _with_drift
 
 
 def _record(q: np.ndarray, tau: np.ndarray, tau_cmd: np.ndarray | None = None) -> Dataset:
@@ -91,8 +91,12 @@ def test_verdict_rules(
 ) -> None:
     tau = np.zeros((100, 2))
     preds = {"nominal": np.full((100, 2), 0.2), "calibrated": np.full((100, 2), cal_err)}
-    got, reason = _verdict(
-        findings, _Signals(tau), preds, np.ones(2), nominal_white, calibrated_white, np.ones(2, bool)
-    )  # type: ignore[arg-type]
+    got, reason = _verdict(findings, _Signals(tau), preds, np.ones(2), nominal_white, calibrated_white)  # type: ignore[arg-type]
     assert got == verdict, reason
     assert reason
+    # training records whose torque zero differs are structure whatever the validation says, and both are said
+    drift = [{"joint": "shoulder", "spread": 0.2}]
+    with_drift, both = _with_drift(got, reason, drift)
+    assert with_drift == "unexplained_structure"
+    assert both.startswith(reason) and "shoulder (0.2 N m)" in both
+    assert _with_drift(got, reason, []) == (got, reason)

@@ -424,7 +424,7 @@ def diagnose(
     white_nom = whiteness(s_va.residual, sigma, fs)
     left = s_va.smooth(s_va.tau - preds["calibrated"])
     white_cal = whiteness(left, sigma, fs)
-    verdict, reason = _verdict(findings, s_va, preds, weights, white_nom, white_cal, plant.actuated, drift)
+    verdict, reason = _with_drift(*_verdict(findings, s_va, preds, weights, white_nom, white_cal), drift)
     remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
     return Diagnosis(
         system=plant.name,
@@ -481,6 +481,18 @@ def _p_text(p: float) -> str:
     return f"= {p:.1g}" if p >= 1e-12 else "< 1e-12"
 
 
+def _with_drift(verdict: str, reason: str, drift: Sequence[dict[str, Any]]) -> tuple[str, str]:
+    """The verdict once training records whose mean residual differs beyond their noise (`drift`, from
+    `residuals.changing_offsets`) are counted: structure no parameter set removes, whatever the validation shows."""
+    if not drift:
+        return verdict, reason
+    joints = ", ".join(f"{d['joint']} ({d['spread']:.3g} N m)" for d in drift)
+    return "unexplained_structure", (
+        f"{reason}; and the mean torque residual differs between the training records on {joints}: a torque "
+        "zero or load that changes between recordings (see `notes`)"
+    )
+
+
 def _verdict(
     findings: list[Finding],
     s_va: Signals,
@@ -488,8 +500,6 @@ def _verdict(
     weights: np.ndarray,
     white_nom: list[dict[str, Any]],
     white_cal: list[dict[str, Any]],
-    actuated: np.ndarray,
-    drift: Sequence[dict[str, Any]] = (),
 ) -> tuple[str, str]:
     """The verdict from the residual that is left on the validation records.
 
@@ -499,28 +509,8 @@ def _verdict(
       found does not lower the held-out error), or in the calibrated one;
     - `no_discrepancy`: nothing found and the nominal residual is white within the noise.
     Unactuated joints count where their residual is structured: a passive joint's torque must be zero.
-    Training records whose mean residual differs beyond their noise (`drift`, from
-    `residuals.changing_offsets`) are structure too: no parameter set removes it, whatever the validation shows.
+    Training records whose mean residual differs beyond their noise are structure too (`_with_drift`).
     """
-    verdict, reason = _verdict_on_validation(findings, s_va, preds, weights, white_nom, white_cal)
-    if drift:
-        joints = ", ".join(f"{d['joint']} ({d['spread']:.3g} N m)" for d in drift)
-        return "unexplained_structure", (
-            f"{reason}; and the mean torque residual differs between the training records on {joints}: a torque "
-            "zero or load that changes between recordings (see `notes`)"
-        )
-    return verdict, reason
-
-
-def _verdict_on_validation(
-    findings: list[Finding],
-    s_va: Signals,
-    preds: dict[str, np.ndarray],
-    weights: np.ndarray,
-    white_nom: list[dict[str, Any]],
-    white_cal: list[dict[str, Any]],
-) -> tuple[str, str]:
-    """`_verdict`'s rules on the validation records alone."""
     meas = s_va.smooth(s_va.tau)
 
     def mse(pred: np.ndarray) -> float:
