@@ -360,6 +360,7 @@ def record_diagnosis(
         f"**data set:** {dataset or ', '.join(label for _, label in records)}",
         f"**validation records:** {', '.join(label for _, label in records)} (one tab each)",
         f"**verdict: {result.verdict}**: {_criterion(result.verdict, selection)}",
+        f"**why, on these data:** {result.verdict_reason or '(not recorded)'}",
         f"Torques and residuals are compared in the {band}, as in the table below; the q panels re-start the "
         f"simulations from the measured state every {result.info.get('window_s', 0.25):g} s.",
     ]

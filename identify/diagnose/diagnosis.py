@@ -362,10 +362,14 @@ def diagnose(
     )
     m = nuisance.shape[2]
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
-    X, fit = _final_fit(plant, steps, X, s_tr, weights, m)
+    X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m)
     sources = [r.data.source for r in tr]
-    left_tr = s_tr.residual - np.einsum("knp,p->kn", X, fit.coef)
-    drift = [] if m else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources)
+    unusable = frozenset(
+        (a.source, a.joint)
+        for a in anomalies
+        if a.kind in ("joint_never_moves", "torque_stuck_at_zero", "torque_saturated")
+    )
+    drift = [] if m else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources, exclude=unusable)
     offsets_by_record = fit.coef[:m].reshape(len(tr), -1) if m else np.zeros((0, plant.nv))
     if m:
         full = np.zeros((len(tr), plant.nv))
@@ -464,9 +468,10 @@ def diagnose(
         ]
         + [
             f"{d['joint']}: the training records' mean torque residuals differ by {d['spread']:.3g} N m "
-            f"({min(d['means']):+.3g} to {max(d['means']):+.3g}; p {_p_text(d['p_value'])} against their noise): "
-            "a torque zero that changes between recordings (re-zeroed at power-up) or a load that does; no model "
-            "predicts it on another record (diagnose.record_offsets=true fits one per record as a nuisance)"
+            f"({min(d['means']):+.3g} to {max(d['means']):+.3g}; p {_p_text(d['p_value'])} against their noise), "
+            "for example a torque zero that changes between recordings (re-zeroed at power-up) or a load that does; "
+            "a parameter set shared by the records does not predict it (diagnose.record_offsets=true fits one per "
+            "record as a nuisance)"
             for d in drift
         ]
         + list(ext.notes),
@@ -488,8 +493,8 @@ def _with_drift(verdict: str, reason: str, drift: Sequence[dict[str, Any]]) -> t
         return verdict, reason
     joints = ", ".join(f"{d['joint']} ({d['spread']:.3g} N m)" for d in drift)
     return "unexplained_structure", (
-        f"{reason}; and the mean torque residual differs between the training records on {joints}: a torque "
-        "zero or load that changes between recordings (see `notes`)"
+        f"{reason}; and the mean torque residual differs between the training records on {joints}, for example "
+        "a torque zero or a load that changes between recordings (see `notes`)"
     )
 
 
@@ -675,8 +680,12 @@ _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle wit
 
 def _final_fit(
     plant: Plant, steps: list[Step], X: np.ndarray, s: Signals, weights: np.ndarray, n_nuisance: int = 0
-) -> tuple[np.ndarray, LinearFit]:
+) -> tuple[np.ndarray, LinearFit, np.ndarray]:
     """Joint fit of the chosen columns, with joint offsets and torque gains made exact.
+
+    Returns:
+        (the columns, re-made where offsets and gains were iterated; the fit; (N, nv) the residual it leaves,
+        with the nominal torque at the fitted joint offsets, not its first-order expansion).
 
     The joints are weighted by the variance of what the fit leaves on each (feasible GLS from `weights`,
     re-weighted until the weights settle): on a simulation that is the sensor noise the selection weighs by,
@@ -711,7 +720,7 @@ def _final_fit(
     ]
     gains = [int(start[i]) for i, st in enumerate(steps) if st.candidate.effect == "torque_gain"]
     if not offsets and not gains:
-        return X, fit
+        return X, fit, s.residual - np.einsum("knp,p->kn", X, fit.coef)
     X, shift, nominal = X.copy(), np.zeros(plant.nv), s.tau_nominal
     others = [c for c in range(X.shape[2]) if c not in gains and c not in {c for c, _ in offsets}]
     for _ in range(20):
@@ -737,10 +746,11 @@ def _final_fit(
         fit = fit_columns(X, s.smooth(s.tau - nominal), weights, lower=lo_it, upper=hi_it, record=s.record)
         if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
+    left = s.smooth(s.tau - nominal) - np.einsum("knp,p->kn", X, fit.coef)
     coef = fit.coef.copy()
     for c, j in offsets:
         coef[c] += shift[j]
-    return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time)
+    return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time), left
 
 
 def _step_bounds(steps: list[Step], n_nuisance: int) -> tuple[np.ndarray, np.ndarray]:

@@ -34,49 +34,61 @@ def changing_offsets(
     floor: np.ndarray,
     sources: list[str],
     *,
+    exclude: frozenset[tuple[str, str]] = frozenset(),
     alpha: float = 1e-3,
+    min_correlation_times: float = 10.0,
 ) -> list[dict[str, Any]]:
-    """Joints whose residual has a different mean in each record: a torque zero that changes between
+    """Joints whose residual has a different mean in each record: for example a torque zero that changes between
     recordings (a sensor re-zeroed at power-up), or a load that does.
 
     Per actuated joint, the records' mean residuals are compared with what their noise allows: each mean's
-    std is the record's residual std times sqrt(tau_int / n) (tau_int the residual's integrated
-    autocorrelation time within the records), and the spread is named where the chi-square of the means about
-    their weighted mean has a p-value below `alpha` and the means span at least the torque noise floor.
+    std is the record's residual std times sqrt(tau_int / n), with tau_int the record's own integrated
+    autocorrelation time (records shorter than `min_correlation_times` tau_int are left out: their mean is
+    not known well enough). The spread is named where the chi-square of the means about their weighted mean
+    has a p-value below `alpha` and the means span at least the torque noise floor.
 
     Args:
         e: (N, nv) residual left by the fit, in the analysis band.
         record: (N,) record index of each row (0 .. R-1).
         names: (nv,) joint names; actuated: (nv,) bool; floor: (nv,) torque noise std [N m].
         sources: (R,) where each record came from.
+        exclude: (source, joint) pairs left out: a joint that never moves in that record (its mean is the
+            stiction it rests in), a torque that is stuck at zero or saturated there.
 
     Returns:
         One dict per such joint: joint, per-record `means` [N m] (with their `sources`), `spread` [N m],
-        `p_value`; empty with fewer than two records.
+        `p_value`; empty with fewer than two usable records.
     """
-    records = np.unique(record)
-    if len(records) < 2:
-        return []
     out: list[dict[str, Any]] = []
     for j in np.flatnonzero(actuated):
-        tau = correlation_time(e[:, j], record)
-        means, sds = [], []
-        for r in records:
+        means, sds, used = [], [], []
+        for r in np.unique(record):
+            if (sources[int(r)], names[j]) in exclude:
+                continue
             x = e[record == r, j]
+            tau = correlation_time(x)
+            if len(x) < min_correlation_times * tau:
+                continue
+            # a residual that is constant to rounding has a known mean: its std is held at a tiny fraction of the
+            # floor (MAD-free), so that it weighs most without dividing by zero
+            sd = max(float(x.std()) * np.sqrt(tau / len(x)), 1e-9 * max(float(floor[j]), 1e-12))
             means.append(float(x.mean()))
-            sds.append(float(x.std()) * np.sqrt(tau / len(x)) + 1e-300)
-        m, sd = np.array(means), np.array(sds)
-        w = 1.0 / sd**2
+            sds.append(sd)
+            used.append(sources[int(r)])
+        if len(means) < 2:
+            continue
+        m, sd_arr = np.array(means), np.array(sds)
+        w = 1.0 / sd_arr**2
         centre = float(np.sum(w * m) / np.sum(w))
-        chi2 = float(np.sum(((m - centre) / sd) ** 2))
-        p = float(stats.chi2.sf(chi2, len(records) - 1))
+        chi2 = float(np.sum(((m - centre) / sd_arr) ** 2))
+        p = float(stats.chi2.sf(chi2, len(means) - 1))
         spread = float(m.max() - m.min())
-        if p < alpha and spread >= floor[j]:
+        if np.isfinite(chi2) and p < alpha and spread >= floor[j]:
             out.append(
                 {
                     "joint": names[j],
                     "means": [round(v, 6) for v in means],
-                    "sources": [sources[int(r)] for r in records],
+                    "sources": used,
                     "spread": spread,
                     "p_value": p,
                 }
