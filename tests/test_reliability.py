@@ -54,10 +54,11 @@ def _one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
 
 
 def _wait_for_lock(folder: Path, timeout_s: float = 120) -> int:
-    """The pid written in `folder`'s lock file once a run holds it."""
+    """The pid written in `folder`'s lock file once a run holds it (the run creates the file, locks it and then
+    writes its pid: a read in between finds it empty)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        with contextlib.suppress(OSError, ValueError):
+        with contextlib.suppress(OSError, ValueError, IndexError):
             return int((folder / LOCK_NAME).read_text().split()[0])
         time.sleep(0.05)
     raise AssertionError(f"no run took the lock of {folder}")
