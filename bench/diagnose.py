@@ -1,6 +1,7 @@
 """The discrepancy diagnosis benchmarked: hidden effects on simulated data, and real logs file by file.
 
-1. **Hidden effects** (`hidden_effect_table`): data from the independent generator of
+1. **Hidden effects** (`hidden_effect_table`; `several_records_table` for three training records, with
+   effects the same in every record or a torque zero that changes between them): data from the independent generator of
    `identify.diagnose.testbed` (its own MuJoCo stepping loop, PD control and multi-sine excitation, not
    `envs.simulate`) with one effect hidden in the plant or the sensor, diagnosed against the clean MJCF
    on a held-out record of another excitation: what is named first, its value against the truth, the
@@ -284,15 +285,29 @@ def main(parts: tuple[str, ...] = ("hidden", "lofo")) -> None:
         else:
             result["lofo"] = {s: lofo_table(s) for s in SESSIONS}
     if "hidden" in parts:
-        from identify.diagnose.testbed import hidden_effect_table
+        from identify.diagnose.testbed import hidden_effect_table, several_records_table
 
         result["hidden"] = hidden_effect_table()
+        result["several_records"] = several_records_table()
     out_json.write_text(json.dumps(result, indent=1))
     md = ["# Discrepancy diagnosis", "", "Written by `python -m bench diagnose` (see bench/diagnose.py).", ""]
     if "hidden" in result:
         from identify.diagnose.testbed import hidden_markdown
 
         md += ["## Hidden effects (independent generator)", "", hidden_markdown(result["hidden"]), ""]
+    if "several_records" in result:
+        from identify.diagnose.testbed import several_markdown
+
+        md += [
+            "## Several training records (independent generator)",
+            "",
+            "Three 6 s training records and a 4 s validation record, each its own multi-sine; `changing`: a torque "
+            "zero that differs between the records is named (`info.changing_offsets`) and the verdict is "
+            "`unexplained_structure`.",
+            "",
+            several_markdown(result["several_records"]),
+            "",
+        ]
     for table in result.get("lofo", {}).values():
         md += [_lofo_markdown(table), ""]
     if "lofo" in result:

@@ -22,7 +22,7 @@ import pytest
 from identify.diagnose import Diagnosis
 from identify.diagnose.calibrate import mjcf_measured_torque
 from identify.diagnose.candidates import candidates
-from identify.diagnose.testbed import Injected, diagnose_case, rollout
+from identify.diagnose.testbed import Injected, diagnose_case, diagnose_records, rollout
 
 
 def _names(dg: Diagnosis, i: int = 0) -> set[tuple[str, str]]:
@@ -154,17 +154,7 @@ def test_band_filtered_torques_of_every_validation_record_are_exposed() -> None:
 
 
 def _several_records(system: str, per_record: list[list[Injected]], validation: list[Injected]) -> Diagnosis:
-    """Trained on one 6 s record per entry of `per_record` (each its own multi-sine and effects), validated on
-    a 4 s record with `validation`."""
-    from identify.diagnose import diagnose
-
-    rngs = np.random.default_rng(5).spawn(len(per_record) + 1)
-    train = []
-    for i, effects in enumerate(per_record):
-        plant, data = rollout(system, effects, rng=rngs[i], duration_s=6.0, source=f"train_{i}")
-        train.append(data)
-    _, val = rollout(system, validation, rng=rngs[-1], duration_s=4.0, source="validation")
-    return diagnose(plant, train, [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0})
+    return diagnose_records(system, per_record, validation)[1]  # type: ignore[no-any-return]
 
 
 @pytest.mark.parametrize(
@@ -207,3 +197,11 @@ def test_a_large_joint_offset_is_not_mistaken_for_changing_torque_zeros() -> Non
     )
     assert not dg.info["changing_offsets"], dg.info["changing_offsets"]
     assert ("joint_offset", "shoulder") in _names(dg)
+
+
+def test_every_case_of_the_several_records_table_is_ok() -> None:
+    """The README's several-records table (`python -m bench diagnose`): every row as expected."""
+    from identify.diagnose.testbed import several_records_table
+
+    rows = several_records_table()
+    assert all(r["ok"] for r in rows), [r for r in rows if not r["ok"]]
