@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 
 __all__ = [
+    "friction_enabled",
     "friction_parameters",
     "friction_shape",
     "friction_solver",
@@ -54,6 +55,13 @@ def friction_shape(dq: np.ndarray, ddq: np.ndarray, speed: np.ndarray, lead: np.
     speed = np.asarray(speed, dtype=float)
     ramp = np.clip((dq + np.asarray(lead) * np.asarray(ddq)) / np.where(speed > 0, speed, 1.0), -1.0, 1.0)
     return np.where(speed > 0, ramp, np.sign(dq))
+
+
+def friction_enabled(m: mujoco.MjModel) -> bool:
+    """False where the model's <option><flag> disables frictionloss (or every constraint): MuJoCo then applies
+    no dry friction at all."""
+    off = int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS) | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    return not m.opt.disableflags & off
 
 
 def friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,7 @@ import pinocchio as pin
 
 from dynamics.actuators import Actuation, actuation_of
 from dynamics.errors import ModelError
-from dynamics.friction import friction_parameters
+from dynamics.friction import friction_enabled, friction_parameters
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
 from dynamics.urdf import URDF_SUFFIXES, urdf_as_mjcf_file
@@ -314,9 +314,7 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
     # a disabled spring, damper or dry friction (an <option><flag>) is absent from MuJoCo's dynamics, so from ours
     spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
     damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
-    friction_on = not m.opt.disableflags & int(
-        mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-    )
+    friction_on = friction_enabled(m)
     theta = np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])
     friction_speed, friction_lead = friction_parameters(m)
     plant = Plant(

@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 from scipy import optimize
 
-from dynamics.friction import friction_shape, friction_solver, ideal_friction_speed
+from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed
 from dynamics.inertia import (
     body_and_jacobian,
     is_consistent,
@@ -469,19 +469,18 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
     if not changed:
         return
     m = spec.compile()  # the inverse inertias of the calibrated model (its inertials and joint refs)
-    off = int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
-    if m.opt.disableflags & off:
+    if not friction_enabled(m):
         ext.notes.append(
             "the model's <option><flag> disables frictionloss (or every constraint): the fitted friction is written "
             "but MuJoCo does not apply it until the flag is enabled"
         )
+    step = float(m.opt.timestep)
     for j in changed:
         name = plant.joint_names[j]
         fc, invweight = float(m.dof_frictionloss[j]), float(m.dof_invweight0[j])
         if fc <= 0:
             ext.friction_speed[j] = 0.0
             continue
-        step = float(m.opt.timestep)
         if ext.friction_speed[j] <= 0:  # the joint's own ramp where it declares one, the ideal shape otherwise
             declared = float(plant.friction_speed[j])
             ext.friction_speed[j] = declared if declared > 0 else ideal_friction_speed(fc, invweight, step)

@@ -364,11 +364,7 @@ def diagnose(
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
     X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m)
     sources = [r.data.source for r in tr]
-    unusable = frozenset(
-        (a.source, a.joint)
-        for a in anomalies
-        if a.kind in ("joint_never_moves", "torque_stuck_at_zero", "torque_saturated")
-    )
+    unusable = frozenset((a.source, a.joint) for a in anomalies)  # every anomaly makes a record's mean meaningless
     drift = [] if m else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources, exclude=unusable)
     offsets_by_record = fit.coef[:m].reshape(len(tr), -1) if m else np.zeros((0, plant.nv))
     if m:
@@ -701,15 +697,16 @@ def _final_fit(
     in the calibrated model. Every coefficient stays within its candidate's physical range.
     """
     lo, hi = _step_bounds(steps, n_nuisance)
-    fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
+    residual = s.residual  # low-passed record by record on every access: once
+    fit = fit_columns(X, residual, weights, lower=lo, upper=hi, record=s.record)
     for _ in range(_FGLS_ITERATIONS):
-        left = np.sqrt(np.mean((s.residual - np.einsum("knp,p->kn", X, fit.coef)) ** 2, axis=0))
+        left = np.sqrt(np.mean((residual - np.einsum("knp,p->kn", X, fit.coef)) ** 2, axis=0))
         if not np.any(left > 0):
             break  # an exact fit: nothing to weigh by
         new = 1.0 / safe_sigma(left, s.actuated) ** 2  # an unactuated joint: at most the best actuated weight
         done = bool(np.allclose(new / new.sum(), weights / weights.sum(), rtol=1e-3, atol=0))
         weights = new
-        fit = fit_columns(X, s.residual, weights, lower=lo, upper=hi, record=s.record)
+        fit = fit_columns(X, residual, weights, lower=lo, upper=hi, record=s.record)
         if done:
             break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
@@ -720,7 +717,7 @@ def _final_fit(
     ]
     gains = [int(start[i]) for i, st in enumerate(steps) if st.candidate.effect == "torque_gain"]
     if not offsets and not gains:
-        return X, fit, s.residual - np.einsum("knp,p->kn", X, fit.coef)
+        return X, fit, residual - np.einsum("knp,p->kn", X, fit.coef)
     X, shift, nominal = X.copy(), np.zeros(plant.nv), s.tau_nominal
     others = [c for c in range(X.shape[2]) if c not in gains and c not in {c for c, _ in offsets}]
     for _ in range(20):

@@ -70,7 +70,7 @@ def changing_offsets(
             if len(x) < min_correlation_times * tau:
                 continue
             # a residual that is constant to rounding has a known mean: its std is held at a tiny fraction of the
-            # floor (MAD-free), so that it weighs most without dividing by zero
+            # floor, so that it weighs most without dividing by zero
             sd = max(float(x.std()) * np.sqrt(tau / len(x)), 1e-9 * max(float(floor[j]), 1e-12))
             means.append(float(x.mean()))
             sds.append(sd)

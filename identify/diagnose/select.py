@@ -33,7 +33,9 @@ independent sample in sixty, and counting all of them would let any column throu
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy import optimize
@@ -203,16 +205,15 @@ def _scores(
     return max(rss, 0.0), held
 
 
-def _offset_like(cols: np.ndarray, kept: list[int], sw: np.ndarray, actuated: np.ndarray, share: float) -> list[int]:
-    """The kept columns with less than `share` of their norm outside the span of constant joint torques."""
-    if not np.any(actuated):
-        return []  # no measured torque, no offset to stand in for
-    n, nv = cols.shape[:2]
-    const = np.zeros((n, nv, nv))
-    for j in np.flatnonzero(actuated):
-        const[:, j, j] = 1.0
-    basis = np.linalg.qr(_flat(const[:, :, np.flatnonzero(actuated)], sw))[0]
-    return [c for c in kept if _independence(basis, _flat(cols[:, :, c : c + 1], sw)[:, 0]) < share]
+def _offset_like(cols: np.ndarray, sw: np.ndarray, actuated: np.ndarray, share: float) -> set[int]:
+    """Indices of the columns with less than `share` of their norm outside the span of constant joint torques."""
+    act = np.flatnonzero(actuated)
+    if not act.size:
+        return set()  # no measured torque, no offset to stand in for
+    const = np.zeros((cols.shape[0], cols.shape[1], act.size))
+    const[:, act, np.arange(act.size)] = 1.0
+    basis = np.linalg.qr(_flat(const, sw))[0]
+    return {c for c in range(cols.shape[2]) if _independence(basis, _flat(cols[:, :, c : c + 1], sw)[:, 0]) < share}
 
 
 def _bic(rss: float, n_obs: int, n_eff: float, p: int) -> float:
@@ -232,35 +233,40 @@ def _shares_frictionloss(cand: Candidate, chosen: list[Step]) -> bool:
     )
 
 
-def _without_offset_like(
+def _score_added(
     X: np.ndarray,
-    cols: np.ndarray,
-    kept: list[int],
-    cand: Candidate,
-    sw: np.ndarray,
-    actuated: np.ndarray,
-    b: np.ndarray,
-    folds: np.ndarray,
-    n_folds: int,
     lo: np.ndarray,
     hi: np.ndarray,
-    share: float,
-) -> tuple[list[int], tuple[str, ...]]:
-    """(kept columns, names left nominal): the offset-like columns (`_offset_like`) are dropped, together, where
-    the fit without them has a held-out MSE no higher than with them (see the module docstring)."""
-    group = _offset_like(cols, kept, sw, actuated, share)
-    rest = [c for c in kept if c not in group]
-    if not group or not rest:
-        return kept, ()
+    cols: np.ndarray,
+    cand: Candidate,
+    b: np.ndarray,
+    sw: np.ndarray,
+    folds: np.ndarray,
+    n_folds: int,
+    kept: list[int],
+) -> tuple[float, np.ndarray]:
+    """`_scores` of the chosen columns X with the candidate's columns `kept` added, within their bounds."""
+    A = _flat(np.concatenate([X, cols[:, :, kept]], axis=2), sw)
+    return _scores(A, b, folds, n_folds, np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]]))
 
-    def held_out(k: list[int]) -> float:
-        A = _flat(np.concatenate([X, cols[:, :, k]], axis=2), sw)
-        lo_c, hi_c = np.concatenate([lo, cand.lower[k]]), np.concatenate([hi, cand.upper[k]])
-        return _fold_mse(_scores(A, b, folds, n_folds, lo_c, hi_c)[1], folds, n_folds)
 
-    if held_out(rest) > held_out(kept):
-        return kept, ()
-    return rest, tuple(cand.parameter_names[c] for c in group)
+def _without_offset_like(
+    kept: list[int],
+    offset_like: set[int],
+    score: Callable[[list[int]], tuple[float, np.ndarray]],
+    mse: Callable[[np.ndarray], float],
+) -> tuple[list[int], tuple[float, np.ndarray], list[int]]:
+    """(kept columns, their `score`, the offset-like columns dropped): the kept columns in `offset_like` are
+    dropped, together, where the fit without them has a held-out MSE (`mse` of the folds) no higher than with
+    them (see the module docstring)."""
+    with_all = score(kept)
+    rest = [c for c in kept if c not in offset_like]
+    if len(rest) in (0, len(kept)):
+        return kept, with_all, []
+    without = score(rest)
+    if mse(without[1]) > mse(with_all[1]):
+        return kept, with_all, []
+    return rest, without, [c for c in kept if c in offset_like]
 
 
 def select_effects(
@@ -285,7 +291,8 @@ def select_effects(
     """
     n, nv = train.tau.shape
     sw = np.sqrt(weights)
-    b = (train.residual * sw).ravel()
+    residual = train.residual  # low-passed record by record on every access: once
+    b = (residual * sw).ravel()
     n_obs = len(b)
     dt = float(np.median(np.diff(train.time)))
     records = np.unique(train.record)
@@ -299,6 +306,11 @@ def select_effects(
         min_gain = options.min_gain
     row_record = np.repeat(train.record, 1)
     built = {c.key: train.columns(c) for c in pool}
+    offset_like = {  # rigid-body columns a constant joint torque nearly spans on these data (module docstring)
+        c.key: _offset_like(built[c.key], sw, train.actuated, options.offset_independence)
+        for c in pool
+        if c.effect == "rigid_body" and kind == "files"
+    }
     chosen: list[Step] = []
     X = np.zeros((n, nv, 0)) if nuisance is None else nuisance
     lo, hi = np.full(X.shape[2], -np.inf), np.full(X.shape[2], np.inf)
@@ -326,15 +338,17 @@ def select_effects(
                 and _independence(basis, _flat(cols[:, :, :1], sw)[:, 0]) < options.min_independence
             ):
                 continue  # confounded with what is already chosen
-            held_nominal: tuple[str, ...] = ()
-            if cand.effect == "rigid_body" and kind == "files":
-                kept, held_nominal = _without_offset_like(
-                    X, cols, kept, cand, sw, train.actuated, b, folds, n_folds, lo, hi, options.offset_independence
+
+            score = partial(_score_added, X, lo, hi, cols, cand, b, sw, folds, n_folds)
+            dropped: list[int] = []
+            if cand.key in offset_like:
+                kept, (rss_c, held_c), dropped = _without_offset_like(
+                    kept, offset_like[cand.key], score, lambda h: _fold_mse(h, folds, n_folds)
                 )
-            A = _flat(np.concatenate([X, cols[:, :, kept]], axis=2), sw)
-            lo_c, hi_c = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
-            rss_c, held_c = _scores(A, b, folds, n_folds, lo_c, hi_c)
-            bic_c = _bic(rss_c, n_obs, n_eff, A.shape[1])
+            else:
+                rss_c, held_c = score(kept)
+            held_nominal = tuple(cand.parameter_names[c] for c in dropped)
+            bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
             gains = 1.0 - held_c / np.maximum(held, 1e-300)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
             unanimous = kind == "files" and n_folds >= 3 and bool(np.all(gains >= min_gain))
@@ -367,7 +381,7 @@ def select_effects(
         bic_c, cand, kept, rss_c, held_c, held_nominal = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
-        fit = fit_columns(X_new, train.residual, weights, lower=lo_new, upper=hi_new, record=row_record)
+        fit = fit_columns(X_new, residual, weights, lower=lo_new, upper=hi_new, record=row_record)
         sl = slice(X.shape[2], X_new.shape[2])
         value, std = cand.value(fit.coef[sl], fit.cov[sl, sl], X_new[:, :, sl])
         null = 1.0 if cand.effect == "torque_gain" else 0.0

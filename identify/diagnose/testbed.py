@@ -299,29 +299,30 @@ def hidden_effect_cases() -> list[tuple[str, list[Injected], str]]:
 
 def diagnose_case(system: str, effects: list[Injected], seed: int = 0, **kwargs: Any) -> Any:
     """Train on a 10 s record and validate on a 5 s record of another multi-sine, both from `rollout`."""
-    from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
-
-    rng_train, rng_val = np.random.default_rng(seed).spawn(2)
-    plant, train = rollout(system, effects, rng=rng_train, duration_s=10.0, source="testbed_train")
-    _, validation = rollout(system, effects, rng=rng_val, duration_s=5.0, source="testbed_validation")
-    return plant, diagnose(
-        plant, [train], [validation], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}, **kwargs
-    )
+    return diagnose_records(system, [effects], effects, seed, train_s=10.0, validation_s=5.0, **kwargs)
 
 
 def diagnose_records(
-    system: str, per_record: list[list[Injected]], validation: list[Injected], seed: int = 5, **kwargs: Any
+    system: str,
+    per_record: list[list[Injected]],
+    validation: list[Injected],
+    seed: int = 5,
+    *,
+    train_s: float = 6.0,
+    validation_s: float = 4.0,
+    **kwargs: Any,
 ) -> tuple[Plant, Any]:
-    """Train on one 6 s record per entry of `per_record` (each its own multi-sine and hidden effects, such as a
-    torque zero that changes between power-ups) and validate on a 4 s record with `validation`."""
-    from identify.diagnose.diagnosis import diagnose
+    """Train on one `train_s` record per entry of `per_record` (each its own multi-sine and hidden effects, such
+    as a torque zero that changes between power-ups) and validate on a `validation_s` record with `validation`."""
+    from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
 
     rngs = np.random.default_rng(seed).spawn(len(per_record) + 1)
     train = []
     for i, effects in enumerate(per_record):
-        plant, data = rollout(system, effects, rng=rngs[i], duration_s=6.0, source=f"train_{i}")
+        source = "testbed_train" if len(per_record) == 1 else f"testbed_train_{i}"
+        plant, data = rollout(system, effects, rng=rngs[i], duration_s=train_s, source=source)
         train.append(data)
-    _, val = rollout(system, validation, rng=rngs[-1], duration_s=4.0, source="validation")
+    _, val = rollout(system, validation, rng=rngs[-1], duration_s=validation_s, source="testbed_validation")
     return plant, diagnose(
         plant, train, [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}, **kwargs
     )
