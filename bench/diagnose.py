@@ -190,6 +190,12 @@ def lofo_table(session: str, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
                 ],
                 "reachable_in_sample": [bool(c <= b) for c, b in zip(rms["lab_form_all"], best, strict=True)],
                 "verdict": dg.verdict,
+                "outside_training": [
+                    {"joint": d["joint"], "share": max(d["share_outside_by_angle"], d["share_outside_by_speed"])}
+                    for d in dg.info["outside_training"]
+                ],
+                "prediction_std": list(dg.info["prediction_std"].values()),
+                "diagnosis_band_rms": list(dg.models["calibrated"]["torque_rms"].values()),
                 "findings": [
                     f.name + (f" ({', '.join(f.held_nominal)} nominal)" if f.held_nominal else "") for f in dg.findings
                 ],
@@ -232,6 +238,21 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             r = s["both_filtered"]
             cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
             lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(s['wins_both_filtered'])} |")
+    if all("prediction_std" in s for s in table["splits"]):
+        lines += [
+            "",
+            f"What the diagnosis itself says about each held-out file of {table['session']}: where it leaves the "
+            "training motion (share of its rows at positions or speeds the training files never reach), and the "
+            "calibrated prediction's std from the parameters' uncertainty against its error (both in the "
+            "diagnosis's own band and states):",
+            "",
+            "| held out | outside the training motion | prediction std | calibrated RMS | verdict |",
+            "|---|---|---|---|---|",
+        ]
+        for s in table["splits"]:
+            out = ", ".join(f"{o['joint']} {o['share']:.0%}" for o in s["outside_training"]) or "-"
+            std, rms = (" / ".join(f"{v:.4f}" for v in s[k]) for k in ("prediction_std", "diagnosis_band_rms"))
+            lines.append(f"| {s['held_out']} | {out} | {std} | {rms} | {s['verdict']} |")
     if all("lab_form_all" in s["torque_rms"] for s in table["splits"]):
         lines += [
             "",

@@ -382,10 +382,19 @@ def _summary(payload: dict[str, Any]) -> str:
         alts = "".join(f" or {c['effect']} {c['target']}".rstrip() for c in f.get("confounded_with", []))
         held = f" ({', '.join(f['held_nominal'])} nominal)" if f.get("held_nominal") else ""
         lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {std:.2g} {f['unit']}{bound}{alts}{held}")
+    for d in payload.get("info", {}).get("outside_training", []):
+        share = max(d["share_outside_by_angle"], d["share_outside_by_speed"])
+        lines.append(
+            f"  outside the training motion: {d['joint']} in {Path(d['source']).name} ({share:.0%} of its rows)"
+        )
     for model, m in payload["models"].items():
         tau = ", ".join(f"{j} {v:.4f}" for j, v in m["torque_rms"].items())
         sim = ", ".join(f"{j} {v:.4f}" for j, v in m.get("simulation_error", {}).items())
         lines.append(f"  {model:18s} torque RMS [N m]: {tau}; simulation error [rad]: {sim or '-'}")
+    spread = payload.get("info", {}).get("prediction_std")
+    if spread:
+        std = ", ".join(f"{j} {v:.4f}" for j, v in spread.items())
+        lines.append(f"  {'':18s} calibrated prediction std from the parameters' uncertainty [N m]: {std}")
     return "\n".join(lines)
 
 

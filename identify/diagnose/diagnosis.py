@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from dynamics.base import base_parameters
@@ -23,7 +24,7 @@ from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states
-from identify.diagnose.anomalies import Anomaly, find_anomalies
+from identify.diagnose.anomalies import Anomaly, describe_outside, find_anomalies, outside_training
 from identify.diagnose.calibrate import (
     Extension,
     applied_from_measured,
@@ -377,6 +378,18 @@ def diagnose(
         (s_tr.smooth(s_tr.regressor) * sw[None, :, None]).reshape(-1, s_tr.regressor.shape[2]), mode="r"
     )
     findings = _findings(steps, fit, X, s_tr, s_va, weights, names, m, offsets_by_record)
+    spread = _prediction_std(steps, fit, s_va, m)
+    outside = outside_training(
+        s_tr.q,
+        s_tr.dq,
+        s_va.q,
+        s_va.dq,
+        s_va.record,
+        names=names,
+        sources=[r.data.source for r in va],
+        hinge=plant.mj_model.jnt_type[plant.mj_model.dof_jntid] == int(mujoco.mjtJoint.mjJNT_HINGE),
+        position_matters=_position_matters(s_tr),
+    )
     findings = _with_confounding(findings, steps, pool, s_tr, weights, X, m, selection.confound_independence)
     ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m else None)
     refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx)
@@ -454,6 +467,8 @@ def diagnose(
                 {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
             ],
             "changing_offsets": drift,
+            "prediction_std": _per_joint(names, spread),
+            "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
         + [
@@ -470,12 +485,34 @@ def diagnose(
             "record as a nuisance)"
             for d in drift
         ]
+        + [describe_outside(d) for d in outside]
         + list(ext.notes),
         series=series,
         remaining=remaining,
         anomalies=[a.to_dict() for a in anomalies],
         verdict_reason=reason,
     )
+
+
+def _prediction_std(steps: list[Step], fit: LinearFit, s_va: Signals, n_nuisance: int) -> np.ndarray:
+    """(nv,) RMS over the validation rows of the std of the effects' torque that the fit's covariance gives [N m]
+    (in the analysis band; the per-record nuisance is left out, as the validation records have their own).
+
+    It is what the parameters' uncertainty alone makes the calibrated prediction uncertain by: a validation
+    error far above it and the noise floor is model error (or a record unlike the training ones), not
+    estimation noise.
+    """
+    if not steps:
+        return np.zeros(s_va.tau.shape[1])
+    cols = np.concatenate([s_va.columns(st.candidate)[:, :, st.kept] for st in steps], axis=2)
+    cov = fit.cov[n_nuisance:, n_nuisance:]
+    return np.sqrt(np.mean(np.clip(np.einsum("knp,pq,knq->kn", cols, cov, cols), 0, None), axis=0))
+
+
+def _position_matters(s: Signals) -> np.ndarray:
+    """(nv,) False where a joint's angle changes no nominal torque on the training rows (a wheel's angle)."""
+    scale = max(float(np.max(np.abs(s.tau_nominal), initial=0.0)), 1e-12)
+    return np.max(np.abs(s.dtau_dq), axis=(0, 1), initial=0.0) > 1e-9 * scale
 
 
 def _p_text(p: float) -> str:
