@@ -392,7 +392,7 @@ def _summary(payload: dict[str, Any]) -> str:
         sim = ", ".join(f"{j} {v:.4f}" for j, v in m.get("simulation_error", {}).items())
         lines.append(f"  {model:18s} torque RMS [N m]: {tau}; simulation error [rad]: {sim or '-'}")
     spread = payload.get("info", {}).get("prediction_std")
-    if spread:
+    if spread and any(v > 0 for v in spread.values()):  # no effect found: nothing was fitted
         std = ", ".join(f"{j} {v:.4f}" for j, v in spread.items())
         lines.append(f"  {'':18s} calibrated prediction std from the parameters' uncertainty [N m]: {std}")
     return "\n".join(lines)

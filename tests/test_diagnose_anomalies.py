@@ -36,6 +36,9 @@ def test_a_joint_that_never_moves_a_torque_stuck_at_zero_and_a_saturated_torque_
         ("torque_stuck_at_zero", "elbow"),
         ("torque_saturated", "shoulder"),
     }
+    still = next(a for a in find_anomalies([_record(q, tau)]) if a.kind == "joint_never_moves")
+    # a joint that never moves is held by static friction: its torque error there is no evidence on friction
+    assert still.describe().startswith("log.csv: elbow never moves (range_rad ") and "static" in still.describe()
     # clean data: nothing
     clean = _record(
         np.column_stack([swing, np.cos(t)]), np.column_stack([swing, np.cos(t)]) + rng.normal(0, 0.01, (3000, 2))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_diagnose_offset_like import ALONG_LINK, SIGMA, _record
 
-from dynamics.plant import Plant, load_plant
+from dynamics.plant import Plant, load_plant, plant_from_xml
 from dynamics.regressor import rigid_body_regressor
 from dynamics.torque import joint_torque
 from envs.dataset import Dataset
@@ -20,7 +20,9 @@ from identify.derivatives import derive_states
 from identify.diagnose import diagnose
 from identify.diagnose.anomalies import OUTSIDE_SHARE, describe_outside, outside_training
 from identify.diagnose.candidates import Signals, candidates, signals
-from identify.diagnose.diagnosis import _position_matters
+from identify.diagnose.diagnosis import _position_matters, _prediction_std
+from identify.diagnose.select import Step
+from identify.diagnose.statistics import LinearFit
 
 NAMES = ("a", "b")
 
@@ -79,44 +81,50 @@ def test_a_validation_record_that_swings_wider_is_named_as_outside_the_training_
     assert len(notes) == 2 and all(n.startswith("wider.csv: ") and "extrapolates" in n for n in notes), notes
 
 
+HINGES = {"hinge": np.array([True, True]), "periodic": np.array([True, True])}
+
+
+def _outside(q, dq, q_val, dq_val, **kwargs):  # type: ignore[no-untyped-def]
+    """`outside_training` of one training and one validation record, both position-dependent hinges by default."""
+    options = {"names": NAMES, "sources": ["v.csv"], **HINGES, "position_matters": np.array([True, True])}
+    options.update(kwargs)
+    return outside_training(q, dq, np.zeros(len(q), int), q_val, dq_val, np.zeros(len(q_val), int), **options)
+
+
 def test_angles_inside_the_training_motion_are_not_named() -> None:
     t = np.linspace(0, 10, 2000)
     q = np.column_stack([np.sin(t), 0.5 * np.cos(2 * t)])
     dq = np.column_stack([np.cos(t), -np.sin(2 * t)])
-    found = outside_training(
-        q, dq, 0.9 * q[::3], 0.9 * dq[::3], np.zeros(len(q[::3]), int), names=NAMES, sources=["v"],
-        hinge=np.array([True, True]), position_matters=np.array([True, True]),
-    )  # fmt: skip
-    assert found == []
+    assert _outside(q, dq, 0.9 * q[::3], 0.9 * dq[::3]) == []
 
 
-def test_a_hinge_angle_one_turn_away_is_inside() -> None:
-    """The torque of a hinge repeats every turn: an oscillation about pi is covered by one about -pi."""
+def test_a_hinge_angle_one_turn_away_is_inside_unless_a_spring_makes_the_torque_differ() -> None:
+    """The torque of a hinge repeats every turn: an oscillation about pi is covered by one about -pi; with a
+    joint spring it does not repeat, and a slide never wraps."""
     t = np.linspace(0, 10, 2000)
     q = np.column_stack([np.pi + 0.3 * np.sin(t), 0.3 * np.sin(t)])
     dq = np.column_stack([0.3 * np.cos(t), 0.3 * np.cos(t)])
-    kwargs = {"names": NAMES, "sources": ["v"], "position_matters": np.array([True, True])}
     shifted = q - np.array([2 * np.pi, 0.0])
-    assert outside_training(q, dq, shifted, dq, np.zeros(len(q), int), hinge=np.array([True, True]), **kwargs) == []
-    slide = outside_training(q, dq, shifted, dq, np.zeros(len(q), int), hinge=np.array([False, True]), **kwargs)
-    assert [d["joint"] for d in slide] == ["a"] and slide[0]["unit"] == "m"  # a slide does not wrap
+    assert _outside(q, dq, shifted, dq) == []
+    spring = _outside(q, dq, shifted, dq, periodic=np.array([False, True]))
+    assert [d["joint"] for d in spring] == ["a"] and spring[0]["unit"] == "rad"
+    slide = _outside(q, dq, shifted, dq, hinge=np.array([False, True]))
+    assert [d["joint"] for d in slide] == ["a"] and slide[0]["unit"] == "m"
     assert slide[0]["share_outside_by_angle"] == 1.0 and slide[0]["share_outside_by_speed"] == 0.0
     assert " m; training " in describe_outside(slide[0]) and "m/s" not in describe_outside(slide[0])
 
 
 def test_speeds_beyond_the_fastest_training_speed_are_named_and_a_cyclic_angle_is_not() -> None:
     t = np.linspace(0, 10, 2000)
-    q = np.column_stack([0.3 * np.sin(t), 5.0 * t])  # joint b: a wheel turning at 5 rad/s
-    dq = np.column_stack([0.3 * np.cos(t), np.full_like(t, 5.0)])
-    q_val = np.column_stack([0.3 * np.sin(t), 100.0 + 5.0 * t])  # the wheel elsewhere, no faster
-    dq_val = np.column_stack([0.6 * np.cos(t), np.full_like(t, 5.0)])  # joint a: twice as fast, same angles
-    found = outside_training(
-        q, dq, q_val, dq_val, np.zeros(len(t), int), names=NAMES, sources=["v.csv"],
-        hinge=np.array([True, True]), position_matters=np.array([True, False]),
-    )  # fmt: skip
+    q = np.column_stack([0.3 * np.sin(t), 0.3 * np.sin(t)])  # joint b: a wheel swinging 0.3 rad
+    dq = np.column_stack([0.3 * np.cos(t), 0.3 * np.cos(t)])
+    q_val = np.column_stack([0.3 * np.sin(t), 2.0 + 0.3 * np.sin(t)])  # the wheel elsewhere, no faster
+    dq_val = np.column_stack([0.6 * np.cos(t), 0.3 * np.cos(t)])  # joint a: twice as fast, same angles
+    found = _outside(q, dq, q_val, dq_val, position_matters=np.array([True, False]))
     assert [d["joint"] for d in found] == ["a"]
     assert found[0]["share_outside_by_angle"] == 0.0
-    assert found[0]["share_outside_by_speed"] == pytest.approx(np.mean(np.abs(0.6 * np.cos(t)) > 1.1 * 0.3), abs=1e-9)
+    expected = np.mean(np.abs(0.6 * np.cos(t)) > 1.1 * 0.3 + 0.01)
+    assert found[0]["share_outside_by_speed"] == pytest.approx(expected, abs=1e-9)
     text = describe_outside(found[0])
     assert text.startswith("v.csv: a moves outside") and "faster than 1.1 x" in text and "positions" not in text
 
@@ -125,13 +133,103 @@ def test_a_share_below_the_threshold_is_not_named() -> None:
     t = np.linspace(0, 10, 1000)
     q = np.column_stack([0.3 * np.sin(t), 0.3 * np.sin(t)])
     q_val = q.copy()
-    n_out = int(0.5 * OUTSIDE_SHARE * len(t))
-    q_val[:n_out, 0] = 2.0  # a few rows far outside
+    q_val[: int(0.5 * OUTSIDE_SHARE * len(t)), 0] = 2.0  # a few rows far outside
+    assert _outside(q, q, q_val, q) == []
+
+
+def test_a_joint_held_still_is_not_outside_at_rounding_speeds_or_a_hair_away() -> None:
+    """Held still in training (speed exactly 0) and in validation a hair away: filter rounding speeds and a
+    position 0.0005 rad (or 1e-9 m) off are inside."""
+    n = 500
+    q = np.column_stack([np.full(n, 0.0870), np.full(n, 0.5)])
+    q_val = np.column_stack([np.full(n, 0.0875), np.full(n, 0.5 + 1e-9)])
+    rounding = np.full((n, 2), 3e-14)
+    assert _outside(q, np.zeros((n, 2)), q_val, rounding, hinge=np.array([True, False])) == []
+
+
+def test_sparse_rows_of_a_fast_rotation_cover_the_angles_between_them() -> None:
+    """15 rad/s sampled at 50 Hz: 0.3 rad between rows. The motion passes every angle between two rows, so a
+    phase-shifted validation record of the same rotation is inside."""
+    t = np.arange(0, 4, 0.02)
+    q = np.column_stack([15 * t, 0.3 * np.sin(t)])
+    dq = np.column_stack([np.full_like(t, 15.0), 0.3 * np.cos(t)])
+    assert _outside(q, dq, q + np.array([0.15, 0.0]), dq) == []
+
+
+def test_training_records_are_not_joined_across_their_boundary() -> None:
+    """Two training records at -1 and +1 rad do not cover the angles between them."""
+    n = 200
+    q = np.column_stack([np.r_[np.full(n, -1.0), np.full(n, 1.0)], np.zeros(2 * n)])
     found = outside_training(
-        q, q, q_val, q, np.zeros(len(t), int), names=NAMES, sources=["v"],
-        hinge=np.array([True, True]), position_matters=np.array([True, True]),
+        q, np.zeros_like(q), np.repeat([0, 1], n), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n, int),
+        names=NAMES, sources=["v.csv"], **HINGES, position_matters=np.array([True, True]),
     )  # fmt: skip
-    assert found == []
+    assert [d["joint"] for d in found] == ["a"] and found[0]["share_outside_by_angle"] == 1.0
+
+
+def test_the_prediction_std_is_the_rms_of_each_rows_std() -> None:
+    """Rows of different uncertainty: the RMS of the per-row std (the square root of the mean variance), with
+    the coefficients' covariance, correlations included; the nuisance block is left out."""
+
+    class Columns:
+        tau = np.zeros((2, 1))
+
+        def columns(self, candidate: object) -> np.ndarray:
+            return np.array([[[1.0, 0.0]], [[3.0, 3.0]]])  # (rows, joints, columns)
+
+    cov = np.zeros((3, 3))
+    cov[0, 0] = 100.0  # a nuisance coefficient: not part of the prediction
+    cov[1:, 1:] = [[0.04, -0.03], [-0.03, 0.04]]
+    fit = LinearFit(coef=np.zeros(3), cov=cov, sigma=np.ones(1))
+    step = Step(candidate=None, kept=np.array([0, 1]), delta_bic=0.0, cv_mse_before=1.0, cv_mse_after=1.0)  # type: ignore[arg-type]
+    var = np.array([0.04, 9 * (0.04 + 0.04 - 2 * 0.03)])  # x' C x per row
+    assert _prediction_std([step], fit, Columns(), 1)[0] == pytest.approx(np.sqrt(var.mean()))  # type: ignore[arg-type]
+
+
+def _sines(plant: Plant, rng: np.random.Generator, shift: np.ndarray, amplitude: float = 0.4) -> Dataset:
+    """A 6 s multi-sine record at 200 Hz about `shift`, its torque the plant's own inverse dynamics plus noise."""
+    t = np.arange(0.0, 6.0, 0.005)
+    q, dq, ddq = (np.zeros((len(t), plant.nv)) for _ in range(3))
+    for j in range(plant.nv):
+        for f in (0.4, 0.9):
+            w, phase = 2 * np.pi * f * (1 + 0.1 * rng.random()), rng.uniform(0, 2 * np.pi)
+            q[:, j] += amplitude * np.sin(w * t + phase)
+            dq[:, j] += amplitude * w * np.cos(w * t + phase)
+            ddq[:, j] -= amplitude * w**2 * np.sin(w * t + phase)
+    q += shift
+    tau = joint_torque(plant, q, dq, ddq)[0] + rng.normal(0.0, SIGMA, q.shape) * np.asarray(plant.actuated)
+    return Dataset(t, q, tau, plant.joint_names, np.asarray(plant.actuated), dq=dq, ddq=ddq, source="v.csv")
+
+
+def _named(plant: Plant, shift: np.ndarray) -> list[str]:
+    rng = np.random.default_rng(4)
+    train = [_sines(plant, rng, np.zeros(plant.nv)) for _ in range(2)]
+    dg = diagnose(plant, train, [_sines(plant, rng, shift)], rng=np.random.default_rng(0),
+                  effects=("viscous_friction",), derivatives="given")  # fmt: skip
+    return [d["joint"] for d in dg.info["outside_training"]]
+
+
+def test_diagnose_compares_a_hinge_within_one_turn_unless_a_spring_acts_on_it(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    plant = load_plant("two_link")
+    turn = np.array([2 * np.pi, 0.0])
+    assert _named(plant, turn) == []
+    sprung = plant_from_xml(
+        plant.path.read_text().replace('name="shoulder"', 'name="shoulder" stiffness="0.5"', 1), "sprung", tmp_path
+    )
+    assert float(sprung.stiffness[0]) == 0.5
+    assert _named(sprung, turn) == ["shoulder"]
+
+
+def test_diagnose_does_not_compare_the_wheel_angle() -> None:
+    """The inertia-wheel pendulum's wheel angle changes no torque: a validation record with the wheel turned
+    1.5 rad from where the training records kept it is inside; the pendulum turned as far is not."""
+    plant = load_plant("wheel_pendulum")
+    wheel = plant.joint_names.index("wheel")
+    shift = np.zeros(plant.nv)
+    shift[wheel] = 1.5
+    assert _named(plant, shift) == []
+    shift[1 - wheel] = 1.0
+    assert _named(plant, shift) == [plant.joint_names[1 - wheel]]
 
 
 def test_the_wheel_angle_changes_no_torque_and_the_pendulum_angle_does() -> None:

@@ -53,7 +53,13 @@ class Anomaly:
             "torque_saturated": "has a saturated torque",
         }[self.kind]
         numbers = ", ".join(f"{k} {v:.4g}" for k, v in self.detail.items())
-        return f"{Path(self.source).name}: {self.joint} {what} ({numbers})"
+        why = {
+            "joint_never_moves": (
+                ": its friction there is static, anywhere within its breakaway, which no function of its speed "
+                "predicts; a torque error of that size on it there says nothing for or against a friction model"
+            ),
+        }.get(self.kind, "")
+        return f"{Path(self.source).name}: {self.joint} {what} ({numbers}){why}"
 
 
 def _longest_run(mask: np.ndarray) -> int:
@@ -128,14 +134,44 @@ def _saturation(tau: np.ndarray) -> dict[str, float] | None:
     return None
 
 
-COVERAGE_BINS = 72  # bins of a joint's angle (5 degrees on a hinge) in which the training motion is counted
+ANGLE_TOLERANCE = np.deg2rad(5.0)  # a hinge angle within this of the training motion is inside it [rad]
+SLIDE_TOLERANCE = 1e-3  # ... a slide position within this (or 1/72 of the positions' span, if more) [m]
 OUTSIDE_SHARE = 0.05  # a validation record with this share of its rows outside the training motion is named
-SPEED_MARGIN = 1.1  # a speed beyond this many times the fastest training speed is outside the training motion
+SPEED_MARGIN = 1.1  # a speed beyond this many times the fastest training speed, plus SPEED_FLOOR, is outside
+SPEED_FLOOR = 0.01  # [rad/s or m/s]: a joint held still in training is not 'outside' at filter-rounding speeds
+
+
+def _covered(q: np.ndarray, record: np.ndarray, wrap: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) of the disjoint sorted intervals of positions the training motion passes through: between
+    consecutive rows of a record it passes every position in between, however sparse the rows; a hinge's
+    intervals are wrapped to [-pi, pi) (one that spans a turn covers all of it)."""
+    same = record[:-1] == record[1:]
+    lo = np.concatenate([q, np.minimum(q[:-1], q[1:])[same]])
+    hi = np.concatenate([q, np.maximum(q[:-1], q[1:])[same]])
+    if wrap:
+        if np.any(hi - lo >= 2 * np.pi):
+            return np.array([-np.pi]), np.array([np.pi])
+        start = np.mod(lo + np.pi, 2 * np.pi) - np.pi
+        end = start + (hi - lo)
+        over = end > np.pi  # crosses the wrap: split in two
+        lo = np.concatenate([start, np.full(np.count_nonzero(over), -np.pi)])
+        hi = np.concatenate([np.minimum(end, np.pi), end[over] - 2 * np.pi])
+    order = np.argsort(lo)
+    lo, reach = lo[order], np.maximum.accumulate(hi[order])  # reach: the furthest end of any interval so far
+    first = np.flatnonzero(np.concatenate([[True], lo[1:] > reach[:-1]]))  # starts after all before it ended
+    return lo[first], reach[np.concatenate([first[1:] - 1, [len(lo) - 1]])]
+
+
+def _inside(a: np.ndarray, starts: np.ndarray, ends: np.ndarray, tol: float) -> np.ndarray:
+    """Whether each position lies within `tol` of one of the disjoint sorted intervals."""
+    k = np.searchsorted(starts, a + tol, side="right") - 1
+    return (k >= 0) & (a - tol <= ends[np.maximum(k, 0)])
 
 
 def outside_training(
     q_train: np.ndarray,
     dq_train: np.ndarray,
+    record_train: np.ndarray,
     q_val: np.ndarray,
     dq_val: np.ndarray,
     record_val: np.ndarray,
@@ -143,53 +179,62 @@ def outside_training(
     names: tuple[str, ...],
     sources: list[str],
     hinge: np.ndarray,
+    periodic: np.ndarray,
     position_matters: np.ndarray,
 ) -> list[dict[str, Any]]:
     """Where a validation record moves a joint outside what the training records covered.
 
-    A calibrated model is judged on data the fit never saw; where those data reach angles or speeds the
+    A calibrated model is judged on data the fit never saw; where those data reach positions or speeds the
     training records never did, the model extrapolates, and a parameter that the training motion did not
     exercise (a first moment only seen near hanging, a friction only seen slow) can be wrong there however
     well it fits. Per validation record and joint:
 
-    - angles: the joint's range is cut into `COVERAGE_BINS` bins (a hinge's angle wrapped to one turn, since
-      the torque repeats every turn); a validation row is outside where its bin holds no training row. Only
-      for joints whose angle changes the nominal torque (`position_matters`): a wheel's angle does not.
-    - speeds: a validation row is outside where |dq| exceeds `SPEED_MARGIN` times the fastest training |dq|.
+    - positions: a validation row is outside where no training motion passes within `ANGLE_TOLERANCE` of it
+      (a slide: `SLIDE_TOLERANCE`, or 1/72 of the span of the positions if more). The training motion covers
+      every position between two consecutive rows of a record. A hinge whose torque repeats every turn (no
+      joint spring) is compared within one turn. Only for joints whose position changes the nominal torque
+      (`position_matters`): a wheel's angle does not.
+    - speeds: a validation row is outside where |dq| exceeds `SPEED_MARGIN` times the fastest training |dq|
+      plus `SPEED_FLOOR`.
 
     A (record, joint) is reported where either share reaches `OUTSIDE_SHARE`.
 
     Args:
-        q_train, dq_train: (N, nv) training angles and speeds (the fit's filtered states).
-        q_val, dq_val: (M, nv) validation angles and speeds; record_val: (M,) their record index.
+        q_train, dq_train: (N, nv) training positions and speeds (the fit's filtered states); record_train:
+            (N,) their record index.
+        q_val, dq_val: (M, nv) validation positions and speeds; record_val: (M,) their record index.
         names: (nv,) joint names; sources: the validation files, by record index.
-        hinge: (nv,) True for hinge joints (angles wrap), False for slides.
-        position_matters: (nv,) False where the joint's angle enters no nominal torque (a cyclic joint).
+        hinge: (nv,) True for hinges (positions in rad), False for slides (m).
+        periodic: (nv,) True for a hinge whose torque repeats every turn (no joint spring): its positions are
+            compared within one turn.
+        position_matters: (nv,) False where the joint's position enters no nominal torque (a cyclic joint).
 
     Returns:
-        One dict per (record, joint) named: source, joint, share outside by angle and by speed, the training
-        angle span and fastest speed, and the validation record's.
+        One dict per (record, joint) named: source, joint, share outside by position and by speed, the
+        training positions' range and fastest speed, the validation record's, and the unit of position.
     """
     out: list[dict[str, Any]] = []
     for j, name in enumerate(names):
-        wrap = bool(hinge[j])
-        a_tr = np.mod(q_train[:, j] + np.pi, 2 * np.pi) - np.pi if wrap else q_train[:, j]
-        speed_tr = float(np.max(np.abs(dq_train[:, j]))) if len(dq_train) else 0.0
+        wrap = bool(hinge[j] and periodic[j])
+        starts, ends = _covered(q_train[:, j], record_train, wrap)
+        speed_tr = float(np.max(np.abs(dq_train[:, j]), initial=0.0))
         for r, source in enumerate(sources):
             rows = record_val == r
             if not np.any(rows):
                 continue
             q, dq = q_val[rows, j], dq_val[rows, j]
-            a = np.mod(q + np.pi, 2 * np.pi) - np.pi if wrap else q
+            by_angle = 0.0
             if position_matters[j]:
-                lo, hi = (-np.pi, np.pi) if wrap else (min(a_tr.min(), a.min()), max(a_tr.max(), a.max()))
-                edges = np.linspace(lo, hi, COVERAGE_BINS + 1)
-                seen = np.histogram(a_tr, edges)[0] > 0
-                idx = np.clip(np.searchsorted(edges, a, side="right") - 1, 0, COVERAGE_BINS - 1)
-                by_angle = float(np.mean(~seen[idx])) if hi > lo else 0.0
-            else:
-                by_angle = 0.0
-            by_speed = float(np.mean(np.abs(dq) > SPEED_MARGIN * speed_tr))
+                if wrap:
+                    a = np.mod(q + np.pi, 2 * np.pi) - np.pi
+                    inside = np.zeros(len(a), dtype=bool)
+                    for turn in (-2 * np.pi, 0.0, 2 * np.pi):  # within the tolerance across the wrap too
+                        inside |= _inside(a + turn, starts, ends, float(ANGLE_TOLERANCE))
+                else:
+                    tol = ANGLE_TOLERANCE if hinge[j] else max(SLIDE_TOLERANCE, np.ptp(np.r_[q_train[:, j], q]) / 72)
+                    inside = _inside(q, starts, ends, float(tol))
+                by_angle = float(np.mean(~inside))
+            by_speed = float(np.mean(np.abs(dq) > SPEED_MARGIN * speed_tr + SPEED_FLOOR))
             if max(by_angle, by_speed) >= OUTSIDE_SHARE:
                 out.append(
                     {
@@ -201,7 +246,7 @@ def outside_training(
                         "validation_angle": [float(q.min()), float(q.max())],
                         "train_max_speed": speed_tr,
                         "validation_max_speed": float(np.max(np.abs(dq))),
-                        "unit": "rad" if wrap else "m",
+                        "unit": "rad" if hinge[j] else "m",
                     }
                 )
     return out

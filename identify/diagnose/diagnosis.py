@@ -382,12 +382,14 @@ def diagnose(
     outside = outside_training(
         s_tr.q,
         s_tr.dq,
+        s_tr.record,
         s_va.q,
         s_va.dq,
         s_va.record,
         names=names,
         sources=[r.data.source for r in va],
         hinge=plant.mj_model.jnt_type[plant.mj_model.dof_jntid] == int(mujoco.mjtJoint.mjJNT_HINGE),
+        periodic=np.asarray(plant.stiffness) == 0,  # a joint spring's torque does not repeat every turn
         position_matters=_position_matters(s_tr),
     )
     findings = _with_confounding(findings, steps, pool, s_tr, weights, X, m, selection.confound_independence)
