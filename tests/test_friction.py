@@ -356,3 +356,27 @@ def test_a_calibrated_file_keeps_the_friction_a_disabled_flag_hides(tmp_path: Pa
     ext.frictionloss[1] = 0.1
     model = mujoco.MjModel.from_xml_string(calibrated_xml(plant, ext))
     np.testing.assert_allclose(model.dof_frictionloss, [0.3, 0.3], rtol=1e-5)
+
+
+def test_the_bench_widens_every_joint_friction_to_the_ramp_it_asks_for() -> None:
+    """`bench.diagnose.widened` (the friction-shape sensitivity of the real-data table): each dof with a
+    frictionloss reads back the asked width and its Fc unchanged, MuJoCo's inverse dynamics then applies
+    Fc sat(dq / vt) (at zero acceleration, where the ramp's lead does not enter), and the model it was given is
+    left as it was."""
+    from bench.diagnose import widened
+
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint name="a" axis="0 1 0" frictionloss="0.2"/>'
+        '<geom size="0.1" mass="1"/><body pos="0.3 0 0"><joint name="b" axis="0 1 0"/><geom size="0.1" mass="1"/>'
+        "</body></body></worldbody></mujoco>"
+    )
+    before = m.dof_solref.copy()
+    wide = widened(m, 0.1)
+    speed, _ = friction_parameters(wide)
+    assert speed[0] == pytest.approx(0.1) and speed[1] == 0.0  # joint b has no friction
+    assert wide.dof_frictionloss[0] == pytest.approx(0.2) and np.array_equal(m.dof_solref, before)
+    d = mujoco.MjData(wide)
+    for v in (-0.2, -0.05, 0.0, 0.03, 0.3):
+        d.qpos[:], d.qvel[:], d.qacc[:] = 0.0, [v, 0.0], 0.0
+        mujoco.mj_inverse(wide, d)
+        assert d.qfrc_constraint[0] == pytest.approx(-0.2 * np.clip(v / 0.1, -1, 1), abs=1e-6)
