@@ -171,6 +171,7 @@ def read_measured(
     if head or tail:
         t, rows, arrays = t[head : len(t) - tail], rows[head : len(t) - tail], _cut(arrays, head, len(t) - tail)
 
+    logged = {k: arrays[k] for k in ("tau", "tau_cmd")}  # the torques as logged, before any resampling
     t, arrays, resampled = _regularise(t, arrays, rows, resample=resample, label=labels["time"], src=src)
     if resampled is not None:
         repairs.append(resampled)
@@ -182,6 +183,8 @@ def read_measured(
         "rows_read": rows_read,
         "sample_rate_hz": float(1.0 / np.median(np.diff(t))),
     }
+    if resampled is not None:  # interpolation blurs a torque's plateau at a limit: keep the logged values
+        meta.update({f"logged_{k}": v.copy() for k, v in logged.items() if v is not None})
     q_out, tau_out = arrays["q"], arrays["tau"]
     assert q_out is not None and tau_out is not None
     return Dataset(

@@ -103,3 +103,21 @@ def test_verdict_rules(
     assert with_drift == "unexplained_structure"
     assert both.startswith(reason) and "shoulder (0.2 N m)" in both
     assert _with_drift(got, reason, []) == (got, reason)
+
+
+def test_a_command_that_touches_its_limit_a_row_at_a_time_again_and_again_is_clipped() -> None:
+    """A fast controller's command at 616 Hz hits its 8 N m limit for one or two rows per swing, 9 times: named
+    (runs of two rows alone would not be); a quantised sine whose peaks repeat exactly every period is not."""
+    t = np.arange(3000) / 616.0
+    rng = np.random.default_rng(3)
+    cmd = rng.uniform(-7.5, 7.5, len(t))  # a jumpy PID command
+    hits = np.arange(40, 700, 80)  # 9 swings, each clipped for one row or two
+    cmd[hits] = 8.0
+    cmd[hits[::2] + 1] = 8.0
+    q = np.column_stack([np.sin(t), np.cos(t)])
+    tau = np.column_stack([0.5 * np.sin(2 * np.pi * 1.3 * t), np.sin(3 * t)])
+    named = find_anomalies([_record(q, tau, np.column_stack([cmd, np.sin(3 * t)]))])
+    assert [(a.kind, a.joint) for a in named] == [("torque_saturated", "shoulder")]
+    assert named[0].detail["longest_run"] <= 2 and named[0].detail["episodes"] >= 3
+    quantised = np.round(2.0 * np.sin(2 * np.pi * 1.25 * t) / 0.0059) * 0.0059  # 12 bits over +-12 N m
+    assert find_anomalies([_record(q, np.column_stack([quantised, np.sin(3 * t)]))]) == []

@@ -130,3 +130,35 @@ def test_the_validation_file_is_inside_the_training_motion_and_its_error_is_mode
     assert not any("outside the training motion" in n for n in payload["notes"])
     for joint, std in payload["info"]["prediction_std"].items():
         assert 0 < std < 0.5 * payload["models"]["calibrated"]["torque_rms"][joint]
+
+
+@pytest.mark.parametrize(
+    ("data_config", "folder"),
+    [("dfki_double_pendulum", "dfki_double_pendulum_c0"), ("dfki_double_pendulum_c1", "dfki_double_pendulum_c1")],
+)
+def test_the_swing_ups_clipped_command_is_named_on_the_logged_rows(
+    shared_data: Path, data_config: str, folder: str
+) -> None:
+    """C.0's swing-up (trajectory_12, ~616 Hz, jittery) commands the 8 N m limit on both joints, a row or two at a
+    time, again and again; the reader resamples the file, which blurs that plateau, so the anomaly is found on
+    the rows as logged. No other shared file of either session has an anomaly (every joint moves, no torque is
+    stuck at zero or clipped)."""
+    from omegaconf import OmegaConf
+
+    from dynamics.plant import load_plant
+    from envs.measured import read_many
+    from identify.diagnose.anomalies import find_anomalies
+
+    cfg = compose_config(["system=two_link", f"data={data_config}"], config_name="diagnose")
+    files = sorted((shared_data / folder).glob("*.csv"))
+    data = read_many(files, load_plant("two_link"), columns=OmegaConf.to_container(cfg.data.columns))  # type: ignore[arg-type]
+    found = {(Path(a.source).name, a.kind, a.joint, a.detail.get("commanded")) for a in find_anomalies(data)}
+    if folder.endswith("c0"):
+        swing = next(d for d in data if d.source.endswith("trajectory_12.csv"))
+        assert "logged_tau_cmd" in swing.meta and len(swing.meta["logged_tau_cmd"]) != swing.n_samples
+        assert found == {
+            ("trajectory_12.csv", "torque_saturated", "shoulder", 1.0),
+            ("trajectory_12.csv", "torque_saturated", "elbow", 1.0),
+        }
+    else:
+        assert found == set()

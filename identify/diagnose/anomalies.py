@@ -23,7 +23,8 @@ __all__ = ["Anomaly", "describe_outside", "find_anomalies", "outside_training"]
 STILL_RANGE = 0.01  # a joint whose angle spans less than this in a file never moves there [rad]
 STUCK_FRACTION = 0.5  # a torque that is exactly zero on more than this share of rows is stuck at zero
 SATURATED_FRACTION = 0.002  # share of rows on the plateau at the largest |torque| that counts as saturation
-SATURATION_RUN = 3  # ... in runs of at least this many consecutive rows
+SATURATION_RUN = 3  # ... in a run of at least this many consecutive rows,
+SATURATION_EPISODES = 3  # ... or reached again and again: in at least this many separate runs
 SATURATION_RATIO = 8.0  # ... and this many times the rows of the level just below it
 
 
@@ -85,7 +86,11 @@ def find_anomalies(datasets: list[Dataset]) -> list[Anomaly]:
                 out.append(Anomaly("joint_never_moves", data.source, name, {"range_rad": span}))
             if not data.actuated[j]:
                 continue
-            tau = data.tau[:, j]
+            # the torques as logged where the reader resampled them (`envs.measured`): interpolation between
+            # rows would blur a value stuck at zero or a plateau at a limit
+            measured = data.meta.get("logged_tau", data.tau)
+            commanded = data.meta.get("logged_tau_cmd", data.tau_cmd)
+            tau = measured[:, j]
             zero = tau == 0.0
             if np.mean(zero) > STUCK_FRACTION:
                 out.append(
@@ -97,7 +102,7 @@ def find_anomalies(datasets: list[Dataset]) -> list[Anomaly]:
                     )
                 )
                 continue
-            for column, values in (("measured", data.tau), ("commanded", data.tau_cmd)):
+            for column, values in (("measured", measured), ("commanded", commanded)):
                 found = None if values is None else _saturation(values[:, j])
                 if found is not None:
                     out.append(
@@ -115,7 +120,8 @@ def _saturation(tau: np.ndarray) -> dict[str, float] | None:
     below it; the top of a smooth (even quantised) swing holds at most a few times as many (a sine spends
     about 2.4 times as long in its top bin as in the next one). A clip is named when the top level holds
     `SATURATION_RATIO` times the next one, at least `SATURATED_FRACTION` of the rows, in a run of at least
-    `SATURATION_RUN` rows.
+    `SATURATION_RUN` rows or in `SATURATION_EPISODES` separate runs (a fast controller's command touches its
+    limit for a row or two at a time, again and again, as in the DFKI C.0 swing-up logged at ~600 Hz).
     """
     mag = np.abs(tau)
     peak = float(np.max(mag))
@@ -125,12 +131,18 @@ def _saturation(tau: np.ndarray) -> dict[str, float] | None:
     top = mag >= peak - tol
     below = int(np.count_nonzero((mag < peak - tol) & (mag >= peak - 2 * tol)))
     run = _longest_run(top)
+    episodes = int(np.count_nonzero(np.diff(np.concatenate([[0], top.astype(int)])) == 1))
     if (
         np.mean(top) >= SATURATED_FRACTION
-        and run >= SATURATION_RUN
+        and (run >= SATURATION_RUN or episodes >= SATURATION_EPISODES)
         and np.count_nonzero(top) >= SATURATION_RATIO * max(below, 1)
     ):
-        return {"level_Nm": peak, "fraction": float(np.mean(top)), "longest_run": float(run)}
+        return {
+            "level_Nm": peak,
+            "fraction": float(np.mean(top)),
+            "longest_run": float(run),
+            "episodes": float(episodes),
+        }
     return None
 
 
