@@ -121,3 +121,86 @@ def test_a_command_that_touches_its_limit_a_row_at_a_time_again_and_again_is_cli
     assert named[0].detail["longest_run"] <= 2 and named[0].detail["episodes"] >= 3
     quantised = np.round(2.0 * np.sin(2 * np.pi * 1.25 * t) / 0.0059) * 0.0059  # 12 bits over +-12 N m
     assert find_anomalies([_record(q, np.column_stack([quantised, np.sin(3 * t)]))]) == []
+
+
+def _swing(plant, truth, rng: np.random.Generator, source: str, *, elbow_still: bool = False) -> Dataset:  # type: ignore[no-untyped-def]
+    """8 s of multi-sine motion at 200 Hz with the torque of `truth` plus 0.01 N m noise. `elbow_still`: the
+    elbow is held at 0 by static friction while the shoulder swings, so its motor reports zero torque."""
+    from dynamics.torque import joint_torque
+
+    t = np.arange(0.0, 8.0, 0.005)
+    q, dq, ddq = (np.zeros((len(t), 2)) for _ in range(3))
+    for j in range(1 if elbow_still else 2):
+        for f in (0.4, 0.9, 1.3):
+            w, phase = 2 * np.pi * f * (1 + 0.1 * rng.random()), rng.uniform(0, 2 * np.pi)
+            q[:, j] += 0.3 * np.sin(w * t + phase)
+            dq[:, j] += 0.3 * w * np.cos(w * t + phase)
+            ddq[:, j] -= 0.3 * w * w * np.sin(w * t + phase)
+    tau = joint_torque(truth, q, dq, ddq)[0]
+    if elbow_still:
+        tau[:, 1] = 0.0
+    tau += rng.normal(0.0, 0.01, tau.shape)
+    return Dataset(t, q, tau, plant.joint_names, np.asarray(plant.actuated), dq=dq, ddq=ddq, source=source)
+
+
+def test_a_joint_that_never_moves_in_a_training_file_is_left_out_of_the_fit_there(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Link 2 is 0.1 kg heavier than the nominal model; one of three training files has the elbow held by static
+    friction (its motor reports zero) while the shoulder swings. Fitted, those zeros would say the heavier link
+    needs no holding torque: without the exclusion the diagnosis names a shoulder torque gain and leaves 0.22 N m
+    on the elbow (checked last). Left out there, the rigid-body change is found and the validation error is the
+    noise; diagnosis.json and the notes say what was left out."""
+    import identify.diagnose.diagnosis as diagnosis_module
+    from dynamics.plant import load_plant, plant_from_xml
+    from identify.diagnose import diagnose
+
+    plant = load_plant("two_link")
+    truth = plant_from_xml(plant.path.read_text().replace('mass="0.57"', 'mass="0.67"'), "heavier", tmp_path)
+    rng = np.random.default_rng(1)
+    train = [_swing(plant, truth, rng, "a.csv"), _swing(plant, truth, rng, "still.csv", elbow_still=True)]
+    train.append(_swing(plant, truth, rng, "b.csv"))
+    dg = diagnose(plant, train, [_swing(plant, truth, rng, "v.csv")], rng=np.random.default_rng(0), derivatives="given")
+    assert dg.info["left_out_of_fit"] == [{"source": "still.csv", "joint": "elbow"}]
+    assert any(n.startswith("still.csv: elbow's torque left out of the fit") for n in dg.notes), dg.notes
+    assert dg.verdict == "explained" and {f.effect for f in dg.findings} <= {"rigid_body", "payload"}, dg.findings
+    for joint, rms in dg.models["calibrated"]["torque_rms"].items():
+        assert rms < 0.0115, (joint, rms)
+    monkeypatch.setattr(diagnosis_module, "_without_still_joints", lambda s, records: (s, []))
+    fooled = diagnose(plant, train, [_swing(plant, truth, np.random.default_rng(9), "v.csv")],
+                      rng=np.random.default_rng(0), derivatives="given")  # fmt: skip
+    assert fooled.verdict != "explained" and fooled.models["calibrated"]["torque_rms"]["elbow"] > 0.1
+
+
+def test_a_joint_still_in_every_training_file_is_kept() -> None:
+    """With the elbow still in every training file there is nothing else to fit it on: nothing is left out."""
+    from dynamics.plant import load_plant
+    from identify.diagnose import diagnose
+
+    plant = load_plant("two_link")
+    rng = np.random.default_rng(2)
+    train = [_swing(plant, plant, rng, f"{k}.csv", elbow_still=True) for k in "ab"]
+    dg = diagnose(plant, train, [_swing(plant, plant, rng, "v.csv")], rng=np.random.default_rng(0), derivatives="given")
+    assert dg.info["left_out_of_fit"] == []
+
+
+def test_rows_not_used_count_neither_in_the_fit_nor_in_its_noise_estimate() -> None:
+    """`fit_bounded` with `used`: zeroed rows change no coefficient, and the noise level is that of the used rows
+    alone (counted as observations, the zeros would dilute it and the degrees of freedom)."""
+    from identify.diagnose.statistics import fit_bounded
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    X = rng.normal(size=(n, 2, 3))
+    r = X @ np.array([1.0, -2.0, 0.5]) + rng.normal(0, 0.1, (n, 2))
+    used = np.ones((n, 2), bool)
+    used[: n // 2, 1] = False  # half of joint 2's rows say nothing
+    masked = fit_bounded(X * used[:, :, None], r * used, np.ones(2), used=used)
+    alone = fit_bounded(X[n // 2 :], r[n // 2 :], np.ones(2))  # the used rows of joint 2 with joint 1's alike
+    assert np.allclose(
+        masked.sigma,
+        np.sqrt([np.mean((r - X @ masked.coef)[:, 0] ** 2), np.mean((r - X @ masked.coef)[n // 2 :, 1] ** 2)]),
+    )
+    assert masked.sigma[1] == pytest.approx(alone.sigma[1], rel=0.05)
+    assert np.allclose(masked.coef, [1.0, -2.0, 0.5], atol=0.01)
+    counted = fit_bounded(X * used[:, :, None], r * used, np.ones(2))  # the zeros counted as observations
+    assert counted.sigma[1] < 0.75 * masked.sigma[1]  # what `used` prevents: a noise level diluted by zeros
+    assert np.all(np.diag(masked.cov) >= np.diag(counted.cov))

@@ -119,7 +119,13 @@ def test_the_final_fit_weighs_each_joint_by_what_is_left_on_it() -> None:
         [structured * x[:, 0] + 0.01 * rng.normal(size=n), 0.01 * rng.normal(size=n)]
     )
     X = x[:, :, None]
-    s = SimpleNamespace(residual=residual, record=np.zeros(n, dtype=int), actuated=np.array([True, True]))
+    s = SimpleNamespace(
+        residual=residual,
+        record=np.zeros(n, dtype=int),
+        actuated=np.array([True, True]),
+        used=None,  # every row used: the RMS per joint is the plain one
+        used_rms=lambda x: np.sqrt(np.mean(x**2, axis=0)),
+    )
     floor_weights = np.array([1e4, 1.0])  # the floor says joint 0 is the quiet one
     plant = load_plant("two_link")
     _, fit, _ = _final_fit(plant, [], X, s, floor_weights, n_nuisance=1)  # type: ignore[arg-type]

@@ -18,7 +18,7 @@ import numpy as np
 
 from envs.dataset import Dataset
 
-__all__ = ["Anomaly", "describe_outside", "find_anomalies", "outside_training"]
+__all__ = ["Anomaly", "describe_outside", "find_anomalies", "outside_training", "still_joints"]
 
 STILL_RANGE = 0.01  # a joint whose angle spans less than this in a file never moves there [rad]
 STUCK_FRACTION = 0.5  # a torque that is exactly zero on more than this share of rows is stuck at zero
@@ -75,15 +75,23 @@ def _quantum(x: np.ndarray) -> float:
     return float(np.min(steps)) if steps.size else 0.0
 
 
+def _span(q: np.ndarray) -> float:
+    return float(np.percentile(q, 99.5) - np.percentile(q, 0.5))
+
+
+def still_joints(data: Dataset) -> list[int]:
+    """Indices of the joints that never move in the file (their position spans less than `STILL_RANGE`)."""
+    return [j for j in range(data.q.shape[1]) if _span(data.q[:, j]) < STILL_RANGE]
+
+
 def find_anomalies(datasets: list[Dataset]) -> list[Anomaly]:
     """Every anomaly of every file, in file then joint order."""
     out: list[Anomaly] = []
     for data in datasets:
+        still = still_joints(data)
         for j, name in enumerate(data.joint_names):
-            q = data.q[:, j]
-            span = float(np.percentile(q, 99.5) - np.percentile(q, 0.5))
-            if span < STILL_RANGE:
-                out.append(Anomaly("joint_never_moves", data.source, name, {"range_rad": span}))
+            if j in still:
+                out.append(Anomaly("joint_never_moves", data.source, name, {"range_rad": _span(data.q[:, j])}))
             if not data.actuated[j]:
                 continue
             # the torques as logged where the reader resampled them (`envs.measured`): interpolation between

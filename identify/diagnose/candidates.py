@@ -99,6 +99,9 @@ class Signals:
             model output or column before they are compared (None: none). Filtering both sides of
             tau = Y theta alike keeps the equation exact while removing what no rigid model predicts
             (structural vibration, current ripple); every model is judged in the same band.
+        used: (N, nv) False where a row's torque of a joint says nothing the columns can explain (a joint that
+            never moves in a record is held by static friction, anywhere within its breakaway): the residual
+            and every column are zero there, so no fit sees it. None: every row is used.
     """
 
     time: np.ndarray
@@ -113,11 +116,30 @@ class Signals:
     record: np.ndarray
     actuated: np.ndarray
     band_hz: float | None = None
+    used: np.ndarray | None = None
 
     @property
     def residual(self) -> np.ndarray:
-        """(N, nv) measured minus nominal torque [N m], in the analysis band."""
-        return self.smooth(self.tau - self.tau_nominal)
+        """(N, nv) measured minus nominal torque [N m], in the analysis band (0 where not `used`)."""
+        return self.zero_unused(self.smooth(self.tau - self.tau_nominal))
+
+    def zero_unused(self, x: np.ndarray) -> np.ndarray:
+        """(N, nv, ...) -> the same with the (row, joint) values that are not `used` set to 0."""
+        if self.used is None:
+            return x
+        return x * self.used.reshape(self.used.shape + (1,) * (x.ndim - 2))
+
+    @property
+    def n_used(self) -> int:
+        """Number of (row, joint) torque values the fits use."""
+        return int(self.tau.size if self.used is None else np.count_nonzero(self.used))
+
+    def used_rms(self, x: np.ndarray) -> np.ndarray:
+        """(nv,) RMS of an (N, nv) array over the used rows of each joint (0 for a joint with none)."""
+        if self.used is None:
+            return np.sqrt(np.mean(x**2, axis=0))
+        count = np.count_nonzero(self.used, axis=0)
+        return np.sqrt(np.sum(np.where(self.used, x, 0.0) ** 2, axis=0) / np.maximum(count, 1))
 
     def smooth(self, x: np.ndarray) -> np.ndarray:
         """(N, ...) -> the same low-passed at `band_hz`, record by record (identity when band_hz is None)."""
@@ -132,8 +154,8 @@ class Signals:
         return out
 
     def columns(self, candidate: Candidate) -> np.ndarray:
-        """(N, nv, k) the candidate's columns in the analysis band."""
-        return self.smooth(candidate.build(self))
+        """(N, nv, k) the candidate's columns in the analysis band (0 where not `used`)."""
+        return self.zero_unused(self.smooth(candidate.build(self)))
 
     @property
     def n_samples(self) -> int:
@@ -171,7 +193,10 @@ def stack_signals(parts: list[Signals]) -> Signals:
         raise ValueError("no records to stack")
     fields = ("time", "q", "dq", "ddq", "tau", "tau_nominal", "dtau_dq", "dtau_dt", "regressor", "record")
     stacked = {f: np.concatenate([getattr(p, f) for p in parts]) for f in fields}
-    return Signals(**stacked, actuated=parts[0].actuated, band_hz=parts[0].band_hz)
+    used = None
+    if any(p.used is not None for p in parts):
+        used = np.concatenate([np.ones(p.tau.shape, bool) if p.used is None else p.used for p in parts])
+    return Signals(**stacked, actuated=parts[0].actuated, band_hz=parts[0].band_hz, used=used)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -24,7 +25,7 @@ from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states
-from identify.diagnose.anomalies import Anomaly, describe_outside, find_anomalies, outside_training
+from identify.diagnose.anomalies import Anomaly, describe_outside, find_anomalies, outside_training, still_joints
 from identify.diagnose.calibrate import (
     Extension,
     applied_from_measured,
@@ -351,7 +352,7 @@ def diagnose(
     options = dict(derivative_options or {})
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
-    s_tr = stack_signals([r.signals for r in tr])
+    s_tr, left_out = _without_still_joints(stack_signals([r.signals for r in tr]), tr)
     s_va = stack_signals([r.signals for r in va])
     names = plant.joint_names
     floor = np.median([noise_floor(r.data.tau) for r in tr], axis=0) * plant.actuated
@@ -470,6 +471,7 @@ def diagnose(
             ],
             "changing_offsets": drift,
             "prediction_std": _per_joint(names, spread),
+            "left_out_of_fit": left_out,
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
@@ -488,6 +490,11 @@ def diagnose(
             for d in drift
         ]
         + [describe_outside(d) for d in outside]
+        + [
+            f"{Path(d['source']).name}: {d['joint']}'s torque left out of the fit there (the joint never moves; "
+            "static friction held it)"
+            for d in left_out
+        ]
         + list(ext.notes),
         series=series,
         remaining=remaining,
@@ -707,7 +714,33 @@ def _record_offset_columns(s: Signals) -> np.ndarray:
     for i, r in enumerate(records):
         for k, j in enumerate(joints):
             out[s.record == r, j, i * len(joints) + k] = 1.0
-    return out
+    return s.zero_unused(out)
+
+
+def _without_still_joints(s: Signals, records: list[_Record]) -> tuple[Signals, list[dict[str, str]]]:
+    """The training signals with the torque of every joint that never moves in a record left out there
+    (`Signals.used`): static friction holds such a joint with any torque within its breakaway, which no column
+    explains, and fitted it would bias the parameters its other columns share (a link's mass against the torque
+    that held it). A joint still in every record is kept: there is nothing else to fit it on.
+
+    Returns:
+        (the signals, one {source, joint} per record and joint left out).
+    """
+    used = np.ones(s.tau.shape, bool)
+    for i, rec in enumerate(records):
+        for j in still_joints(rec.data):
+            used[s.record == i, j] = False
+    still_everywhere = ~np.any(used, axis=0)
+    used[:, still_everywhere] = True
+    left_out = [
+        {"source": rec.data.source, "joint": rec.data.joint_names[j]}
+        for i, rec in enumerate(records)
+        for j in still_joints(rec.data)
+        if not still_everywhere[j]
+    ]
+    if not left_out:
+        return s, []
+    return dataclasses.replace(s, used=used), left_out
 
 
 _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle within a few)
@@ -737,15 +770,15 @@ def _final_fit(
     """
     lo, hi = _step_bounds(steps, n_nuisance)
     residual = s.residual  # low-passed record by record on every access: once
-    fit = fit_columns(X, residual, weights, lower=lo, upper=hi, record=s.record)
+    fit = fit_columns(X, residual, weights, lower=lo, upper=hi, record=s.record, used=s.used)
     for _ in range(_FGLS_ITERATIONS):
-        left = np.sqrt(np.mean((residual - np.einsum("knp,p->kn", X, fit.coef)) ** 2, axis=0))
+        left = s.used_rms(residual - np.einsum("knp,p->kn", X, fit.coef))
         if not np.any(left > 0):
             break  # an exact fit: nothing to weigh by
         new = 1.0 / safe_sigma(left, s.actuated) ** 2  # an unactuated joint: at most the best actuated weight
         done = bool(np.allclose(new / new.sum(), weights / weights.sum(), rtol=1e-3, atol=0))
         weights = new
-        fit = fit_columns(X, residual, weights, lower=lo, upper=hi, record=s.record)
+        fit = fit_columns(X, residual, weights, lower=lo, upper=hi, record=s.record, used=s.used)
         if done:
             break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
@@ -769,20 +802,21 @@ def _final_fit(
             nominal = joint_torque(plant, q, s.dq, s.ddq)[0]
             jac = torque_jacobian_q(plant, q, s.dq, s.ddq)
             for c, j in offsets:
-                X[:, :, c] = s.smooth(-jac[:, :, j])
+                X[:, :, c] = s.zero_unused(s.smooth(-jac[:, :, j]))
         if gains:
             effects = np.einsum("knp,p->kn", X[:, :, others], fit.coef[others])
-            total = s.smooth(nominal) + effects
+            total = s.zero_unused(s.smooth(nominal)) + effects
             for c in gains:
                 row = np.flatnonzero(np.any(X[:, :, c] != 0, axis=0))
                 X[:, row, c] = total[:, row]
         lo_it, hi_it = lo.copy(), hi.copy()
         for c, j in offsets:  # the bounds hold for the total offset, the coefficient is its increment
             lo_it[c], hi_it[c] = lo[c] - shift[j], hi[c] - shift[j]
-        fit = fit_columns(X, s.smooth(s.tau - nominal), weights, lower=lo_it, upper=hi_it, record=s.record)
+        measured = s.zero_unused(s.smooth(s.tau - nominal))
+        fit = fit_columns(X, measured, weights, lower=lo_it, upper=hi_it, record=s.record, used=s.used)
         if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
-    left = s.smooth(s.tau - nominal) - np.einsum("knp,p->kn", X, fit.coef)
+    left = s.zero_unused(s.smooth(s.tau - nominal)) - np.einsum("knp,p->kn", X, fit.coef)
     coef = fit.coef.copy()
     for c, j in offsets:
         coef[c] += shift[j]
@@ -804,7 +838,7 @@ def _rigid_refit(
     if not rb:
         return Extension.none(plant)
     X = s.columns(rb[0])
-    fit = fit_columns(X, s.residual, weights, record=s.record)
+    fit = fit_columns(X, s.residual, weights, record=s.record, used=s.used)
     step = Step(rb[0], np.arange(X.shape[2]), 0.0, 0.0, 0.0)
     return extension_from_fit(plant, [step], fit, base_idx)
 

@@ -293,7 +293,7 @@ def select_effects(
     sw = np.sqrt(weights)
     residual = train.residual  # low-passed record by record on every access: once
     b = (residual * sw).ravel()
-    n_obs = len(b)
+    n_obs = train.n_used  # a (row, joint) the fit does not use (`Signals.used`) is no observation
     dt = float(np.median(np.diff(train.time)))
     records = np.unique(train.record)
     if len(records) >= 2:  # leave one record out: held out as the validation files will be
@@ -314,7 +314,7 @@ def select_effects(
     chosen: list[Step] = []
     X = np.zeros((n, nv, 0)) if nuisance is None else nuisance
     lo, hi = np.full(X.shape[2], -np.inf), np.full(X.shape[2], np.inf)
-    basis = np.linalg.qr(_flat(X, sw))[0] if X.shape[2] else np.zeros((n_obs, 0))
+    basis = np.linalg.qr(_flat(X, sw))[0] if X.shape[2] else np.zeros((len(b), 0))
     if X.shape[2]:
         rss, held = _scores(_flat(X, sw), b, folds, n_folds, lo, hi)
         coef, *_ = np.linalg.lstsq(_flat(X, sw), b, rcond=None)
@@ -381,7 +381,7 @@ def select_effects(
         bic_c, cand, kept, rss_c, held_c, held_nominal = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
-        fit = fit_columns(X_new, residual, weights, lower=lo_new, upper=hi_new, record=row_record)
+        fit = fit_columns(X_new, residual, weights, lower=lo_new, upper=hi_new, record=row_record, used=train.used)
         sl = slice(X.shape[2], X_new.shape[2])
         value, std = cand.value(fit.coef[sl], fit.cov[sl, sl], X_new[:, :, sl])
         null = 1.0 if cand.effect == "torque_gain" else 0.0

@@ -116,6 +116,7 @@ def fit_bounded(
     lower: np.ndarray | None = None,
     upper: np.ndarray | None = None,
     record: np.ndarray | None = None,
+    used: np.ndarray | None = None,
 ) -> LinearFit:
     """Weighted least squares r ~ X c with lower <= c <= upper and a block-sandwich covariance.
 
@@ -125,10 +126,13 @@ def fit_bounded(
         weights: (nv,) per-joint weights (1 / sigma_j^2).
         lower, upper: (p,) bounds (None: unbounded).
         record: (N,) record of each row (blocks never straddle records).
+        used: (N, nv) the (row, joint) values that are observations; the others are zero in X and r
+            (`Signals.used`) and count neither in the degrees of freedom nor in `sigma`. None: all.
     """
     n, nv, p = X.shape
+    count = np.full(nv, n) if used is None else np.maximum(np.count_nonzero(used, axis=0), 1)
     if p == 0:
-        return LinearFit(np.zeros(0), np.zeros((0, 0)), np.sqrt(np.mean(r**2, axis=0)))
+        return LinearFit(np.zeros(0), np.zeros((0, 0)), np.sqrt(np.sum(r**2, axis=0) / count))
     lo = np.full(p, -np.inf) if lower is None else np.asarray(lower, float)
     hi = np.full(p, np.inf) if upper is None else np.asarray(upper, float)
     sw = np.sqrt(weights)
@@ -150,13 +154,13 @@ def fit_bounded(
         Af = A[:, free]
         blocks = block_ids(n, record, int(np.ceil(BLOCK_CORRELATION_TIMES * tau)))
         sandwich = _block_sandwich(Af, e, nv, blocks)
-        dof = max(len(b) - free.size * tau, 1.0)
+        dof = max((len(b) if used is None else np.count_nonzero(used)) - free.size * tau, 1.0)
         ess = float(e @ e) / dof * tau * np.linalg.pinv(Af.T @ Af)
         d_ess, d_sw = np.clip(np.diag(ess), 1e-300, None), np.clip(np.diag(sandwich), 0, None)
         scale = np.sqrt(np.maximum(d_sw / d_ess, 1.0))
         cov[np.ix_(free, free)] = ess * np.outer(scale, scale)
     resid = r - np.einsum("knp,p->kn", X, coef)
-    return LinearFit(coef, cov, np.sqrt(np.mean(resid**2, axis=0)), flags, tau)
+    return LinearFit(coef, cov, np.sqrt(np.sum(resid**2, axis=0) / count), flags, tau)
 
 
 def _block_sandwich(A: np.ndarray, e: np.ndarray, nv: int, blocks: np.ndarray) -> np.ndarray:
