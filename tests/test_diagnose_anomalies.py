@@ -204,3 +204,51 @@ def test_rows_not_used_count_neither_in_the_fit_nor_in_its_noise_estimate() -> N
     counted = fit_bounded(X * used[:, :, None], r * used, np.ones(2))  # the zeros counted as observations
     assert counted.sigma[1] < 0.75 * masked.sigma[1]  # what `used` prevents: a noise level diluted by zeros
     assert np.all(np.diag(masked.cov) >= np.diag(counted.cov))
+
+
+def test_per_record_offsets_average_over_the_records_where_the_torque_was_fitted() -> None:
+    """With a torque offset per record fitted as a nuisance, a record whose elbow torque is left out has no
+    elbow offset: the calibrated offset is the mean over the others (a 0 for it would pull 0.08 to 0.053)."""
+    from dynamics.plant import load_plant
+    from identify.diagnose import diagnose
+
+    plant = load_plant("two_link")
+    rng = np.random.default_rng(5)
+    files = [_swing(plant, plant, rng, "a.csv"), _swing(plant, plant, rng, "still.csv", elbow_still=True)]
+    files += [_swing(plant, plant, rng, "b.csv"), _swing(plant, plant, rng, "v.csv")]
+    for d in files:
+        d.tau[:, 1] += 0.08  # the elbow's torque zero, the same in every file
+    dg = diagnose(plant, files[:3], files[3:], rng=np.random.default_rng(0), derivatives="given", record_offsets=True)
+    elbow = [o["elbow"] for o in dg.info["record_offsets"]]
+    assert elbow[0] == pytest.approx(0.08, abs=0.005) and elbow[2] == pytest.approx(0.08, abs=0.005)
+    assert dg.residual["elbow"]["mean"] == pytest.approx(0.08, abs=0.005)  # over the torques that were fitted
+    assert np.isnan(elbow[1])  # no estimate where the torque was not fitted
+    assert dg.models["calibrated"]["torque_rms"]["elbow"] < 0.0115
+
+
+def test_a_record_where_nothing_moves_is_no_fold_that_a_candidate_wins() -> None:
+    """A pendulum with hidden viscous friction; one of three training records never moves, so its only torque is
+    left out and its fold has no value: the finding's fold gains say nothing there (no free gain of 1)."""
+    from dynamics.plant import load_plant
+    from dynamics.torque import joint_torque
+    from identify.diagnose import diagnose
+
+    plant = load_plant("pendulum")
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 8.0, 0.005)
+
+    def record(amplitude: float, source: str) -> Dataset:
+        w, phase = 2 * np.pi * 0.7, rng.uniform(0, 2 * np.pi)
+        q = amplitude * np.sin(w * t + phase)[:, None] + 0.2
+        dq = amplitude * w * np.cos(w * t + phase)[:, None]
+        ddq = -amplitude * w * w * np.sin(w * t + phase)[:, None]
+        tau = joint_torque(plant, q, dq, ddq)[0] + 0.02 * dq + rng.normal(0, 0.005, q.shape)
+        return Dataset(t, q, tau, plant.joint_names, np.asarray(plant.actuated), dq=dq, ddq=ddq, source=source)
+
+    train = [record(0.5, "a.csv"), record(0.0, "still.csv"), record(0.6, "b.csv")]
+    dg = diagnose(plant, train, [record(0.5, "v.csv")], rng=np.random.default_rng(0), derivatives="given")
+    assert dg.info["left_out_of_fit"] == [{"source": "still.csv", "joint": "swing"}]
+    viscous = [f for f in dg.findings if f.effect == "viscous_friction"]
+    assert viscous and viscous[0].value == pytest.approx(0.02, rel=0.05), [f.name for f in dg.findings]
+    gains = viscous[0].fold_gains
+    assert len(gains) == 3 and np.isnan(gains[1]) and all(0 < g < 1 for g in (gains[0], gains[2])), gains

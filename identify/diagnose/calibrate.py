@@ -156,7 +156,7 @@ def extension_from_fit(
     ext = Extension.none(plant)
     offset = 0
     if record_offsets is not None and record_offsets.size:
-        ext.torque_offset[:] = record_offsets.mean(axis=0)
+        ext.torque_offset[:] = np.nanmean(record_offsets, axis=0)  # NaN: a record whose torque was not fitted
         offset = int(np.count_nonzero(plant.actuated)) * len(record_offsets)
     names = list(plant.joint_names)
     for s in steps:

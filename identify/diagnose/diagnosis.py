@@ -227,7 +227,10 @@ class Diagnosis:
 def _spread(gains: list[float]) -> dict[str, float] | None:
     if not gains:
         return None
-    g = np.asarray(gains)
+    g = np.asarray(gains, dtype=float)
+    g = g[np.isfinite(g)]  # a fold with no value fitted has no gain
+    if not g.size:
+        return None
     return {"min": float(g.min()), "median": float(np.median(g)), "max": float(g.max()), "std": float(g.std())}
 
 
@@ -355,7 +358,7 @@ def diagnose(
     s_tr, left_out = _without_still_joints(stack_signals([r.signals for r in tr]), tr)
     s_va = stack_signals([r.signals for r in va])
     names = plant.joint_names
-    floor = np.median([noise_floor(r.data.tau) for r in tr], axis=0) * plant.actuated
+    floor = _noise_floor(tr, left_out) * plant.actuated
     weights = _weights(plant, floor)
 
     pool = candidates(plant, list(effects), rng, s_tr)
@@ -366,12 +369,18 @@ def diagnose(
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
     X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m)
     sources = [r.data.source for r in tr]
-    unusable = frozenset((a.source, a.joint) for a in anomalies)  # every anomaly makes a record's mean meaningless
+    # every anomaly makes a record's mean meaningless, and so does a torque left out of the fit
+    unusable = frozenset((a.source, a.joint) for a in anomalies) | {(d["source"], d["joint"]) for d in left_out}
     drift = [] if m else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources, exclude=unusable)
     offsets_by_record = fit.coef[:m].reshape(len(tr), -1) if m else np.zeros((0, plant.nv))
     if m:
         full = np.zeros((len(tr), plant.nv))
         full[:, plant.actuated] = offsets_by_record
+        unfitted = {(d["source"], d["joint"]) for d in left_out}  # no offset is estimated where no torque is fitted
+        for i, rec in enumerate(tr):
+            for j, name in enumerate(names):
+                if (rec.data.source, name) in unfitted:
+                    full[i, j] = np.nan
         offsets_by_record = full
     base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
     sw = np.sqrt(weights)
@@ -717,6 +726,18 @@ def _record_offset_columns(s: Signals) -> np.ndarray:
     return s.zero_unused(out)
 
 
+def _noise_floor(records: list[_Record], left_out: list[dict[str, str]]) -> np.ndarray:
+    """(nv,) the median over the training records of each joint's torque noise floor, leaving out the records
+    where that joint's torque is left out of the fit (a motor that reports zero there has no noise)."""
+    left = {(d["source"], d["joint"]) for d in left_out}
+    floors = np.array([noise_floor(r.data.tau) for r in records], dtype=float)
+    for i, r in enumerate(records):
+        for j, name in enumerate(r.data.joint_names):
+            if (r.data.source, name) in left:
+                floors[i, j] = np.nan
+    return np.nanmedian(floors, axis=0)  # a joint is never left out of every record (`_without_still_joints`)
+
+
 def _without_still_joints(s: Signals, records: list[_Record]) -> tuple[Signals, list[dict[str, str]]]:
     """The training signals with the torque of every joint that never moves in a record left out there
     (`Signals.used`): static friction holds such a joint with any torque within its breakaway, which no column
@@ -857,7 +878,8 @@ def _findings(
     out: list[Finding] = []
     offset = n_nuisance
     cols_va = [s_va.columns(s.candidate)[:, :, s.kept] for s in steps]
-    mean_offset = record_offsets.mean(axis=0) if record_offsets is not None and record_offsets.size else 0.0
+    # NaN where a record's torque was left out of the fit: averaged over the records where it was estimated
+    mean_offset = np.nanmean(record_offsets, axis=0) if record_offsets is not None and record_offsets.size else 0.0
     lo, hi = _step_bounds(steps, n_nuisance)
     flags = fit.bound_flags()
     side = {-1: "lower", 1: "upper", 0: None}

@@ -160,11 +160,13 @@ def analyse_residual(
         win = max(int(window_s * fs), 1)
         power = np.convolve(r[:, j] ** 2, np.ones(win) / win, mode="valid")
         k = int(np.argmax(power))
+        fitted = r[:, j] if s.used is None else r[s.used[:, j], j]  # not the torques left out of the fit
+        rms = float(np.sqrt(np.mean(fitted**2)))
         out[name] = {
-            "rms": float(np.sqrt(np.mean(r[:, j] ** 2))),
-            "mean": float(np.mean(r[:, j])),
+            "rms": rms,
+            "mean": float(np.mean(fitted)),
             "noise_floor": float(floor[j]),
-            "rms_over_noise": float(np.sqrt(np.mean(r[:, j] ** 2)) / max(float(floor[j]), 1e-12)),
+            "rms_over_noise": rms / max(float(floor[j]), 1e-12),
             "dominant_hz": [float(f[i]) for i in top],
             "correlation": corr,
             "shifted_torque": {"lag_s": lag_s, "correlation": lag_corr},

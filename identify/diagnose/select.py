@@ -177,7 +177,8 @@ def _solve_gram(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) ->
 def _scores(
     A: np.ndarray, b: np.ndarray, folds: np.ndarray, n_folds: int, lo: np.ndarray, hi: np.ndarray
 ) -> tuple[float, np.ndarray]:
-    """(weighted RSS of the full bounded fit, (folds,) held-out weighted MSE per fold).
+    """(weighted RSS of the full bounded fit, (folds,) held-out weighted MSE per fold; NaN for a fold with no
+    value, and a value whose fold is `n_folds` is in none: a torque left out of the fit, `Signals.used`).
 
     Every fit is solved from the folds' Gram matrices (p x p), so that a fold costs no pass over the rows.
     """
@@ -201,19 +202,28 @@ def _scores(
         seen = np.diag(Gf) > 1e-9 * np.maximum(np.diag(Gt), 1e-300)
         xf = np.zeros(p)
         xf[seen] = _solve_gram(Gf[np.ix_(seen, seen)], cf[seen], lo[seen], hi[seen])
-        held[f] = float(bb[f] - 2 * c[f] @ xf + xf @ G[f] @ xf) / size[f]
+        held[f] = float(bb[f] - 2 * c[f] @ xf + xf @ G[f] @ xf) / size[f] if size[f] else np.nan
     return max(rss, 0.0), held
 
 
-def _offset_like(cols: np.ndarray, sw: np.ndarray, actuated: np.ndarray, share: float) -> set[int]:
-    """Indices of the columns with less than `share` of their norm outside the span of constant joint torques."""
+def _offset_like(
+    cols: np.ndarray, sw: np.ndarray, actuated: np.ndarray, share: float, used: np.ndarray | None = None
+) -> set[int]:
+    """Indices of the columns with less than `share` of their norm outside the span of constant joint torques
+    (constant on the (row, joint) values that are `used`, as the columns are)."""
     act = np.flatnonzero(actuated)
     if not act.size:
         return set()  # no measured torque, no offset to stand in for
     const = np.zeros((cols.shape[0], cols.shape[1], act.size))
     const[:, act, np.arange(act.size)] = 1.0
+    if used is not None:
+        const *= used[:, :, None]
     basis = np.linalg.qr(_flat(const, sw))[0]
     return {c for c in range(cols.shape[2]) if _independence(basis, _flat(cols[:, :, c : c + 1], sw)[:, 0]) < share}
+
+
+def _mean_square(x: np.ndarray) -> float:
+    return float(np.mean(x**2)) if x.size else float("nan")
 
 
 def _bic(rss: float, n_obs: int, n_eff: float, p: int) -> float:
@@ -222,8 +232,10 @@ def _bic(rss: float, n_obs: int, n_eff: float, p: int) -> float:
 
 
 def _fold_mse(held: np.ndarray, folds: np.ndarray, n_folds: int) -> float:
-    sizes = np.bincount(folds, minlength=n_folds)
-    return float(np.sum(held * sizes) / np.sum(sizes))
+    """The held-out MSE over every fold that has values (weighted by their number)."""
+    sizes = np.bincount(folds[folds < n_folds], minlength=n_folds)
+    ok = sizes > 0
+    return float(np.sum(held[ok] * sizes[ok]) / np.sum(sizes[ok]))
 
 
 def _shares_frictionloss(cand: Candidate, chosen: list[Step]) -> bool:
@@ -305,9 +317,11 @@ def select_effects(
         n_folds, kind = options.folds, "blocks"
         min_gain = options.min_gain
     row_record = np.repeat(train.record, 1)
+    if train.used is not None:  # a torque left out of the fit is in no fold (its value is 0 on both sides)
+        folds = np.where(train.used.ravel(), folds, n_folds)
     built = {c.key: train.columns(c) for c in pool}
     offset_like = {  # rigid-body columns a constant joint torque nearly spans on these data (module docstring)
-        c.key: _offset_like(built[c.key], sw, train.actuated, options.offset_independence)
+        c.key: _offset_like(built[c.key], sw, train.actuated, options.offset_independence, train.used)
         for c in pool
         if c.effect == "rigid_body" and kind == "files"
     }
@@ -320,7 +334,7 @@ def select_effects(
         coef, *_ = np.linalg.lstsq(_flat(X, sw), b, rcond=None)
         e = b - _flat(X, sw) @ coef
     else:
-        rss, held, e = float(b @ b), np.array([float(np.mean(b[folds == f] ** 2)) for f in range(n_folds)]), b
+        rss, held, e = float(b @ b), np.array([_mean_square(b[folds == f]) for f in range(n_folds)]), b
     n_eff = n_obs / correlation_time(e.reshape(n, nv), row_record)
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
     while len(chosen) < options.max_findings:
@@ -349,12 +363,13 @@ def select_effects(
                 rss_c, held_c = score(kept)
             held_nominal = tuple(cand.parameter_names[c] for c in dropped)
             bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
-            gains = 1.0 - held_c / np.maximum(held, 1e-300)
+            gains = 1.0 - held_c / np.maximum(held, 1e-300)  # NaN for a fold with no value (`_scores`)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
-            unanimous = kind == "files" and n_folds >= 3 and bool(np.all(gains >= min_gain))
+            judged = gains[np.isfinite(gains)]
+            unanimous = kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
             if cv_c > (1 - min_gain) * cv or bic_c - bic > (0.0 if unanimous else -options.bic_margin):
                 continue
-            if np.count_nonzero(gains > 0) * 2 <= n_folds:
+            if np.count_nonzero(judged > 0) * 2 <= len(judged):
                 continue  # it must lower the held-out error in most folds, not on average only
             admissible.append((bic_c, cand, kept, rss_c, held_c, held_nominal))
             if best is None or bic_c < best[0]:
