@@ -213,7 +213,12 @@ def lofo_table(session: str, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
                 "reachable_in_sample": [bool(c <= b) for c, b in zip(rms["lab_form_all"], best, strict=True)],
                 "verdict": dg.verdict,
                 "outside_training": [
-                    {"joint": d["joint"], "share": max(d["share_outside_by_angle"], d["share_outside_by_speed"])}
+                    {
+                        "joint": d["joint"],
+                        "share": max(d["share_outside_by_angle"], d["share_outside_by_speed"]),
+                        "angle": d["validation_angle"],
+                        "train_angle": d["train_angle"],
+                    }
                     for d in dg.info["outside_training"]
                 ],
                 "prediction_std": list(dg.info["prediction_std"].values()),
@@ -272,7 +277,16 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             "|---|---|---|---|---|",
         ]
         for s in table["splits"]:
-            out = ", ".join(f"{o['joint']} {o['share']:.0%}" for o in s["outside_training"]) or "-"
+            out = (
+                ", ".join(
+                    f"{o['joint']} {o['share']:.0%} ({o['angle'][0]:.3g} to {o['angle'][1]:.3g} rad; training "
+                    f"{o['train_angle'][0]:.3g} to {o['train_angle'][1]:.3g})"
+                    if "angle" in o
+                    else f"{o['joint']} {o['share']:.0%}"
+                    for o in s["outside_training"]
+                )
+                or "-"
+            )
             std, rms = (" / ".join(f"{v:.4f}" for v in s[k]) for k in ("prediction_std", "diagnosis_band_rms"))
             lines.append(f"| {s['held_out']} | {out} | {std} | {rms} | {s['verdict']} |")
     if all("lab_form_all" in s["torque_rms"] for s in table["splits"]):

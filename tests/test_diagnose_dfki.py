@@ -160,5 +160,10 @@ def test_the_swing_ups_clipped_command_is_named_on_the_logged_rows(
             ("trajectory_12.csv", "torque_saturated", "shoulder", 1.0),
             ("trajectory_12.csv", "torque_saturated", "elbow", 1.0),
         }
+        clips = {a.joint: a.detail for a in find_anomalies([swing])}
+        assert {j: (d["level_Nm"], d["episodes"], d["longest_run"]) for j, d in clips.items()} == {
+            "shoulder": (8.0, 8.0, 2.0),
+            "elbow": (8.0, 12.0, 2.0),
+        }
     else:
         assert found == set()

@@ -518,7 +518,9 @@ def _prediction_std(steps: list[Step], fit: LinearFit, s_va: Signals, n_nuisance
 
     It is what the parameters' uncertainty alone makes the calibrated prediction uncertain by: a validation
     error far above it and the noise floor is model error (or a record unlike the training ones), not
-    estimation noise.
+    estimation noise. A joint offset's or a torque gain's column is taken to first order (the nominal torque's
+    Jacobian and the nominal torque), as in the findings; a coefficient on its bound adds nothing (its
+    covariance is zero), so there the std is a lower bound.
     """
     if not steps:
         return np.zeros(s_va.tau.shape[1])
