@@ -132,6 +132,12 @@ class Plant:
         return len(self.joint_names)
 
     @property
+    def hinge(self) -> np.ndarray:
+        """(nv,) True for hinge joints (positions in rad), False for slides (m)."""
+        m = self.mj_model
+        return np.asarray(m.jnt_type[m.dof_jntid] == int(mujoco.mjtJoint.mjJNT_HINGE))
+
+    @property
     def parameter_names(self) -> tuple[str, ...]:
         """Names of `theta`: symbol and 1-based joint index, e.g. `ZZ1`, `m2`."""
         return tuple(f"{s}{j + 1}" for j in range(self.nv) for s in INERTIAL_SYMBOLS)

@@ -164,7 +164,7 @@ def test_a_joint_that_never_moves_in_a_training_file_is_left_out_of_the_fit_ther
     assert dg.verdict == "explained" and {f.effect for f in dg.findings} <= {"rigid_body", "payload"}, dg.findings
     for joint, rms in dg.models["calibrated"]["torque_rms"].items():
         assert rms < 0.0115, (joint, rms)
-    monkeypatch.setattr(diagnosis_module, "_without_still_joints", lambda s, records: (s, []))
+    monkeypatch.setattr(diagnosis_module, "_without_still_joints", lambda s, records, hinge: (s, []))
     fooled = diagnose(plant, train, [_swing(plant, truth, np.random.default_rng(9), "v.csv")],
                       rng=np.random.default_rng(0), derivatives="given")  # fmt: skip
     assert fooled.verdict != "explained" and fooled.models["calibrated"]["torque_rms"]["elbow"] > 0.2
@@ -253,3 +253,16 @@ def test_a_record_where_nothing_moves_is_no_fold_that_a_candidate_wins() -> None
     assert viscous and viscous[0].value == pytest.approx(0.02, rel=0.05), [f.name for f in dg.findings]
     gains = viscous[0].fold_gains
     assert len(gains) == 3 and np.isnan(gains[1]) and all(0 < g < 1 for g in (gains[0], gains[2])), gains
+
+
+def test_a_slide_is_still_below_a_millimetre_not_below_a_centimetre() -> None:
+    """0.01 is a hinge's threshold in rad (0.57 degrees); a slide's is 1 mm: a linear stage moving 5 mm moves."""
+    t = np.arange(3000) / 500.0
+    q = np.column_stack([np.sin(t), 0.0025 * np.sin(2 * np.pi * t)])  # the slide spans 5 mm
+    tau = np.column_stack([np.sin(3 * t), np.cos(3 * t)]) + np.random.default_rng(1).normal(0, 0.01, (3000, 2))
+    data = _record(q, tau)
+    assert [a.joint for a in find_anomalies([data])] == ["elbow"]  # read as a hinge, 0.005 rad is still
+    assert find_anomalies([data], hinge=np.array([True, False])) == []
+    data.q[:, 1] *= 0.1  # 0.5 mm
+    still = find_anomalies([data], hinge=np.array([True, False]))
+    assert [(a.kind, a.joint) for a in still] == [("joint_never_moves", "elbow")] and "range_m" in still[0].detail

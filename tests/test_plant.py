@@ -82,3 +82,15 @@ def test_unsupported_models_are_refused(tmp_path: Path, joint: str, message: str
     )
     with pytest.raises(ModelError, match=message):
         load_plant(path)
+
+
+def test_hinge_tells_hinges_from_slides(tmp_path: Path) -> None:
+    from dynamics.plant import plant_from_xml
+
+    xml = (
+        '<mujoco><worldbody><body><joint name="rail" type="slide" axis="1 0 0"/><geom size="0.1" mass="1"/>'
+        '<body><joint name="arm" axis="0 1 0"/><geom size="0.1" pos="0 0 -0.2" mass="0.5"/></body></body>'
+        '</worldbody><actuator><motor joint="rail"/><motor joint="arm"/></actuator></mujoco>'
+    )
+    assert plant_from_xml(xml, "cart", tmp_path).hinge.tolist() == [False, True]
+    assert load_plant("two_link").hinge.tolist() == [True, True]

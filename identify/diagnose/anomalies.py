@@ -20,7 +20,8 @@ from envs.dataset import Dataset
 
 __all__ = ["Anomaly", "describe_outside", "find_anomalies", "outside_training", "still_joints"]
 
-STILL_RANGE = 0.01  # a joint whose angle spans less than this in a file never moves there [rad]
+STILL_RANGE = 0.01  # a hinge whose angle spans less than this in a file never moves there [rad]
+STILL_SLIDE_RANGE = 1e-3  # ... a slide whose position spans less than this [m]
 STUCK_FRACTION = 0.5  # a torque that is exactly zero on more than this share of rows is stuck at zero
 SATURATED_FRACTION = 0.002  # share of rows on the plateau at the largest |torque| that counts as saturation
 SATURATION_RUN = 3  # ... in a run of at least this many consecutive rows,
@@ -79,19 +80,25 @@ def _span(q: np.ndarray) -> float:
     return float(np.percentile(q, 99.5) - np.percentile(q, 0.5))
 
 
-def still_joints(data: Dataset) -> list[int]:
-    """Indices of the joints that never move in the file (their position spans less than `STILL_RANGE`)."""
-    return [j for j in range(data.q.shape[1]) if _span(data.q[:, j]) < STILL_RANGE]
+def _still_range(hinge: np.ndarray | None, j: int) -> float:
+    return STILL_RANGE if hinge is None or hinge[j] else STILL_SLIDE_RANGE
 
 
-def find_anomalies(datasets: list[Dataset]) -> list[Anomaly]:
-    """Every anomaly of every file, in file then joint order."""
+def still_joints(data: Dataset, hinge: np.ndarray | None = None) -> list[int]:
+    """Indices of the joints that never move in the file: a hinge's angle spans less than `STILL_RANGE`, a
+    slide's position less than `STILL_SLIDE_RANGE` (`hinge`: (nv,) True for hinges; None: every joint a hinge)."""
+    return [j for j in range(data.q.shape[1]) if _span(data.q[:, j]) < _still_range(hinge, j)]
+
+
+def find_anomalies(datasets: list[Dataset], hinge: np.ndarray | None = None) -> list[Anomaly]:
+    """Every anomaly of every file, in file then joint order (`hinge` as for `still_joints`)."""
     out: list[Anomaly] = []
     for data in datasets:
-        still = still_joints(data)
+        still = still_joints(data, hinge)
         for j, name in enumerate(data.joint_names):
             if j in still:
-                out.append(Anomaly("joint_never_moves", data.source, name, {"range_rad": _span(data.q[:, j])}))
+                unit = "rad" if hinge is None or hinge[j] else "m"
+                out.append(Anomaly("joint_never_moves", data.source, name, {f"range_{unit}": _span(data.q[:, j])}))
             if not data.actuated[j]:
                 continue
             # the torques as logged where the reader resampled them (`envs.measured`): interpolation between

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from dynamics.base import base_parameters
@@ -351,11 +350,11 @@ def diagnose(
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     selection = selection or SelectionOptions()
-    anomalies = list(anomalies) if anomalies is not None else find_anomalies([*train, *validation])
+    anomalies = list(anomalies) if anomalies is not None else find_anomalies([*train, *validation], plant.hinge)
     options = dict(derivative_options or {})
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
-    s_tr, left_out = _without_still_joints(stack_signals([r.signals for r in tr]), tr)
+    s_tr, left_out = _without_still_joints(stack_signals([r.signals for r in tr]), tr, plant.hinge)
     s_va = stack_signals([r.signals for r in va])
     names = plant.joint_names
     floor = _noise_floor(tr, left_out) * plant.actuated
@@ -398,7 +397,7 @@ def diagnose(
         s_va.record,
         names=names,
         sources=[r.data.source for r in va],
-        hinge=plant.mj_model.jnt_type[plant.mj_model.dof_jntid] == int(mujoco.mjtJoint.mjJNT_HINGE),
+        hinge=plant.hinge,
         periodic=np.asarray(plant.stiffness) == 0,  # a joint spring's torque does not repeat every turn
         position_matters=_position_matters(s_tr),
     )
@@ -740,7 +739,9 @@ def _noise_floor(records: list[_Record], left_out: list[dict[str, str]]) -> np.n
     return np.nanmedian(floors, axis=0)  # a joint is never left out of every record (`_without_still_joints`)
 
 
-def _without_still_joints(s: Signals, records: list[_Record]) -> tuple[Signals, list[dict[str, str]]]:
+def _without_still_joints(
+    s: Signals, records: list[_Record], hinge: np.ndarray
+) -> tuple[Signals, list[dict[str, str]]]:
     """The training signals with the torque of every joint that never moves in a record left out there
     (`Signals.used`): static friction holds such a joint with any torque within its breakaway, which no column
     explains, and fitted it would bias the parameters its other columns share (a link's mass against the torque
@@ -751,14 +752,14 @@ def _without_still_joints(s: Signals, records: list[_Record]) -> tuple[Signals, 
     """
     used = np.ones(s.tau.shape, bool)
     for i, rec in enumerate(records):
-        for j in still_joints(rec.data):
+        for j in still_joints(rec.data, hinge):
             used[s.record == i, j] = False
     still_everywhere = ~np.any(used, axis=0)
     used[:, still_everywhere] = True
     left_out = [
         {"source": rec.data.source, "joint": rec.data.joint_names[j]}
         for i, rec in enumerate(records)
-        for j in still_joints(rec.data)
+        for j in still_joints(rec.data, hinge)
         if not still_everywhere[j]
     ]
     if not left_out:
