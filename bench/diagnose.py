@@ -281,8 +281,6 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
                 ", ".join(
                     f"{o['joint']} {o['share']:.0%} ({o['angle'][0]:.3g} to {o['angle'][1]:.3g} rad; training "
                     f"{o['train_angle'][0]:.3g} to {o['train_angle'][1]:.3g})"
-                    if "angle" in o
-                    else f"{o['joint']} {o['share']:.0%}"
                     for o in s["outside_training"]
                 )
                 or "-"
@@ -306,19 +304,33 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _totals(tables: dict[str, dict[str, Any]], reading: str, model: str) -> tuple[float, int, int, int]:
+    """Over every split of `tables`, in `reading` (`torque_rms` or `both_filtered`): the sum of `model`'s
+    held-out RMS over the joints, the joints and the splits (every joint) where it is at most the best lab model,
+    and the number of joints."""
+    total, joints, splits, n = 0.0, 0, 0, 0
+    for t in tables.values():
+        for s in t["splits"]:
+            rms = np.asarray(s[reading][model])
+            won = rms <= np.min([s[reading][a] for a in t["authors"]], axis=0)
+            total, joints, splits, n = (
+                total + rms.sum(),
+                joints + int(won.sum()),
+                splits + bool(won.all()),
+                n + rms.size,
+            )
+    return total, joints, splits, n
+
+
 def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
     """One line per judging reading: the sum of the held-out RMS over every split and joint, the joints and the
     splits (both joints) at most the lab's best model."""
+    n_splits = sum(len(t["splits"]) for t in tables.values())
     lines = []
-    for key, wins in (("torque_rms", "wins"), ("both_filtered", "wins_both_filtered")):
-        splits = [s for t in tables.values() for s in t["splits"]]
-        total = sum(sum(s[key]["calibrated"]) for s in splits)
-        joints = sum(sum(s[wins]) for s in splits)
-        both = sum(all(s[wins]) for s in splits)
-        n = sum(len(s[wins]) for s in splits)
-        lines.append(
-            f"{key}: sum {total:.4f} N m, {joints} of {n} joints and {both} of {len(splits)} splits <= the lab's best"
-        )
+    for reading in ("torque_rms", "both_filtered"):
+        total, joints, splits, n = _totals(tables, reading, "calibrated")
+        won = f"{joints} of {n} joints and {splits} of {n_splits} splits"
+        lines.append(f"{reading}: sum {total:.4f} N m, {won} <= the lab's best")
     return "\n".join(lines)
 
 
@@ -326,7 +338,8 @@ def ramp_markdown(tables: dict[str, dict[str, Any]]) -> str:
     """Every split's calibrated MJCF judged again with its friction `widened` to each of `RAMPS`: the sum of the
     held-out RMS over every split and joint and the joints at most the lab's best model, in both readings."""
     splits = [s for t in tables.values() for s in t["splits"]]
-    authors = {a for t in tables.values() for a in t["authors"]}
+    if not all(f"calibrated_ramp_{v:g}" in s["torque_rms"] for s in splits for v in RAMPS):
+        return ""  # tables from before the ramps were judged
     lines = [
         "| friction of the calibrated MJCF | sum [N m] | joints <= lab | both filtered: sum [N m] | joints <= lab |",
         "|---|---:|---:|---:|---:|",
@@ -337,13 +350,8 @@ def ramp_markdown(tables: dict[str, dict[str, Any]]) -> str:
     ]:
         cells = []
         for reading in ("torque_rms", "both_filtered"):
-            rows = [s for s in splits if key in s[reading]]
-            if len(rows) < len(splits):
-                return ""  # tables from before the ramps were judged
-            best = [np.min([s[reading][a] for a in authors if a in s[reading]], axis=0) for s in rows]
-            total = sum(sum(s[reading][key]) for s in rows)
-            won = sum(int(np.sum(np.asarray(s[reading][key]) <= b)) for s, b in zip(rows, best, strict=True))
-            cells += [f"{total:.4f}", f"{won} of {2 * len(rows)}"]
+            total, won, _, n = _totals(tables, reading, key)
+            cells += [f"{total:.4f}", f"{won} of {n}"]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.ndimage import median_filter
@@ -541,7 +540,7 @@ def _check_angle_units(
     q, dq = arrays["q"], arrays["dq"]
     assert q is not None
     for j, n in enumerate(plant.joint_names):
-        if plant.mj_model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+        if not plant.hinge[j]:
             continue
         lq = labels[f"q_{n}"]
         if dq is not None:

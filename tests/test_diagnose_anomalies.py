@@ -164,7 +164,9 @@ def test_a_joint_that_never_moves_in_a_training_file_is_left_out_of_the_fit_ther
     assert dg.verdict == "explained" and {f.effect for f in dg.findings} <= {"rigid_body", "payload"}, dg.findings
     for joint, rms in dg.models["calibrated"]["torque_rms"].items():
         assert rms < 0.0115, (joint, rms)
-    monkeypatch.setattr(diagnosis_module, "_without_still_joints", lambda s, records, hinge: (s, []))
+    monkeypatch.setattr(
+        diagnosis_module, "_still_joints", lambda records, hinge: np.zeros((len(records), len(hinge)), bool)
+    )
     fooled = diagnose(plant, train, [_swing(plant, truth, np.random.default_rng(9), "v.csv")],
                       rng=np.random.default_rng(0), derivatives="given")  # fmt: skip
     assert fooled.verdict != "explained" and fooled.models["calibrated"]["torque_rms"]["elbow"] > 0.2

@@ -21,7 +21,6 @@ from identify.diagnose import diagnose
 from identify.diagnose.anomalies import OUTSIDE_SHARE, describe_outside, outside_training
 from identify.diagnose.candidates import Signals, candidates, signals
 from identify.diagnose.diagnosis import _position_matters, _prediction_std
-from identify.diagnose.select import Step
 from identify.diagnose.statistics import LinearFit
 
 NAMES = ("a", "b")
@@ -171,19 +170,13 @@ def test_the_prediction_std_is_the_rms_of_each_rows_std() -> None:
     """Rows of different uncertainty: the RMS of the per-row std (the square root of the mean variance), with
     the coefficients' covariance, correlations included; the nuisance block is left out."""
 
-    class Columns:
-        tau = np.zeros((2, 1))
-
-        def columns(self, candidate: object) -> np.ndarray:
-            return np.array([[[1.0, 0.0]], [[3.0, 3.0]]])  # (rows, joints, columns)
-
+    columns = np.array([[[1.0, 0.0]], [[3.0, 3.0]]])  # one step's kept columns: (rows, joints, columns)
     cov = np.zeros((3, 3))
     cov[0, 0] = 100.0  # a nuisance coefficient: not part of the prediction
     cov[1:, 1:] = [[0.04, -0.03], [-0.03, 0.04]]
     fit = LinearFit(coef=np.zeros(3), cov=cov, sigma=np.ones(1))
-    step = Step(candidate=None, kept=np.array([0, 1]), delta_bic=0.0, cv_mse_before=1.0, cv_mse_after=1.0)  # type: ignore[arg-type]
     var = np.array([0.04, 9 * (0.04 + 0.04 - 2 * 0.03)])  # x' C x per row
-    assert _prediction_std([step], fit, Columns(), 1)[0] == pytest.approx(np.sqrt(var.mean()))  # type: ignore[arg-type]
+    assert _prediction_std([columns], fit, 1, 1)[0] == pytest.approx(np.sqrt(var.mean()))
 
 
 def _sines(plant: Plant, rng: np.random.Generator, shift: np.ndarray, amplitude: float = 0.4) -> Dataset:

@@ -64,11 +64,14 @@ class Anomaly:
         return f"{Path(self.source).name}: {self.joint} {what} ({numbers}){why}"
 
 
-def _longest_run(mask: np.ndarray) -> int:
-    if not np.any(mask):
-        return 0
+def _runs(mask: np.ndarray) -> np.ndarray:
+    """Lengths of the runs of consecutive True values of `mask`."""
     edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
-    return int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)))
+    return np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    return int(np.max(_runs(mask), initial=0))
 
 
 def _quantum(x: np.ndarray) -> float:
@@ -145,8 +148,8 @@ def _saturation(tau: np.ndarray) -> dict[str, float] | None:
     tol = max(1.5 * _quantum(tau), 1e-3 * peak)
     top = mag >= peak - tol
     below = int(np.count_nonzero((mag < peak - tol) & (mag >= peak - 2 * tol)))
-    run = _longest_run(top)
-    episodes = int(np.count_nonzero(np.diff(np.concatenate([[0], top.astype(int)])) == 1))
+    runs = _runs(top)
+    run, episodes = int(np.max(runs, initial=0)), len(runs)
     if (
         np.mean(top) >= SATURATED_FRACTION
         and (run >= SATURATION_RUN or episodes >= SATURATION_EPISODES)

@@ -363,8 +363,7 @@ def _unobservable(W: np.ndarray) -> np.ndarray:
 
 def _angle_unit(spec: mujoco.MjSpec, plant: Plant, j: int) -> float:
     """Radians per unit of joint j's angles in the MJCF text (degrees where the compiler says so)."""
-    hinge = int(plant.mj_model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
-    return float(np.pi / 180.0) if hinge and spec.compiler.degree else 1.0
+    return float(np.pi / 180.0) if plant.hinge[j] and spec.compiler.degree else 1.0
 
 
 def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = None, comment: str = "") -> str:

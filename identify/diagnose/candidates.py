@@ -121,7 +121,11 @@ class Signals:
     @property
     def residual(self) -> np.ndarray:
         """(N, nv) measured minus nominal torque [N m], in the analysis band (0 where not `used`)."""
-        return self.zero_unused(self.smooth(self.tau - self.tau_nominal))
+        return self.in_band(self.tau - self.tau_nominal)
+
+    def in_band(self, x: np.ndarray) -> np.ndarray:
+        """(N, nv, ...) -> the same as every fit sees it: low-passed at `band_hz` (`smooth`), 0 where not `used`."""
+        return self.zero_unused(self.smooth(x))
 
     def zero_unused(self, x: np.ndarray) -> np.ndarray:
         """(N, nv, ...) -> the same with the (row, joint) values that are not `used` set to 0."""
@@ -155,7 +159,7 @@ class Signals:
 
     def columns(self, candidate: Candidate) -> np.ndarray:
         """(N, nv, k) the candidate's columns in the analysis band (0 where not `used`)."""
-        return self.zero_unused(self.smooth(candidate.build(self)))
+        return self.in_band(candidate.build(self))
 
     @property
     def n_samples(self) -> int:

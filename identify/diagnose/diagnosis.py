@@ -354,10 +354,12 @@ def diagnose(
     options = dict(derivative_options or {})
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
-    s_tr, left_out = _without_still_joints(stack_signals([r.signals for r in tr]), tr, plant.hinge)
-    s_va = stack_signals([r.signals for r in va])
     names = plant.joint_names
-    floor = _noise_floor(tr, left_out) * plant.actuated
+    unfitted = _still_joints(tr, plant.hinge)  # (records, nv): torques left out of the fit
+    s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)
+    left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
+    s_va = stack_signals([r.signals for r in va])
+    floor = _noise_floor(tr, unfitted) * plant.actuated
     weights = _weights(plant, floor)
 
     pool = candidates(plant, list(effects), rng, s_tr)
@@ -375,19 +377,16 @@ def diagnose(
     if m:
         full = np.zeros((len(tr), plant.nv))
         full[:, plant.actuated] = offsets_by_record
-        unfitted = {(d["source"], d["joint"]) for d in left_out}  # no offset is estimated where no torque is fitted
-        for i, rec in enumerate(tr):
-            for j, name in enumerate(names):
-                if (rec.data.source, name) in unfitted:
-                    full[i, j] = np.nan
+        full[unfitted] = np.nan  # no offset is estimated where no torque is fitted
         offsets_by_record = full
     base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
     sw = np.sqrt(weights)
     metric: np.ndarray = np.linalg.qr(  # type: ignore[assignment]
         (s_tr.smooth(s_tr.regressor) * sw[None, :, None]).reshape(-1, s_tr.regressor.shape[2]), mode="r"
     )
-    findings = _findings(steps, fit, X, s_tr, s_va, weights, names, m, offsets_by_record)
-    spread = _prediction_std(steps, fit, s_va, m)
+    cols_va = [s_va.columns(st.candidate)[:, :, st.kept] for st in steps]  # the chosen columns, validation rows
+    findings = _findings(steps, fit, X, s_tr, s_va, cols_va, weights, names, m, offsets_by_record)
+    spread = _prediction_std(cols_va, fit, m, plant.nv)
     outside = outside_training(
         s_tr.q,
         s_tr.dq,
@@ -511,9 +510,10 @@ def diagnose(
     )
 
 
-def _prediction_std(steps: list[Step], fit: LinearFit, s_va: Signals, n_nuisance: int) -> np.ndarray:
+def _prediction_std(cols_va: list[np.ndarray], fit: LinearFit, n_nuisance: int, nv: int) -> np.ndarray:
     """(nv,) RMS over the validation rows of the std of the effects' torque that the fit's covariance gives [N m]
-    (in the analysis band; the per-record nuisance is left out, as the validation records have their own).
+    (`cols_va`: each step's kept columns on the validation rows, in the analysis band; the per-record nuisance
+    is left out, as the validation records have their own).
 
     It is what the parameters' uncertainty alone makes the calibrated prediction uncertain by: a validation
     error far above it and the noise floor is model error (or a record unlike the training ones), not
@@ -521,9 +521,9 @@ def _prediction_std(steps: list[Step], fit: LinearFit, s_va: Signals, n_nuisance
     Jacobian and the nominal torque), as in the findings; a coefficient on its bound adds nothing (its
     covariance is zero), so there the std is a lower bound.
     """
-    if not steps:
-        return np.zeros(s_va.tau.shape[1])
-    cols = np.concatenate([s_va.columns(st.candidate)[:, :, st.kept] for st in steps], axis=2)
+    if not cols_va:
+        return np.zeros(nv)
+    cols = np.concatenate(cols_va, axis=2)
     cov = fit.cov[n_nuisance:, n_nuisance:]
     return np.sqrt(np.mean(np.clip(np.einsum("knp,pq,knq->kn", cols, cov, cols), 0, None), axis=0))
 
@@ -727,44 +727,31 @@ def _record_offset_columns(s: Signals) -> np.ndarray:
     return s.zero_unused(out)
 
 
-def _noise_floor(records: list[_Record], left_out: list[dict[str, str]]) -> np.ndarray:
+def _noise_floor(records: list[_Record], unfitted: np.ndarray) -> np.ndarray:
     """(nv,) the median over the training records of each joint's torque noise floor, leaving out the records
-    where that joint's torque is left out of the fit (a motor that reports zero there has no noise)."""
-    left = {(d["source"], d["joint"]) for d in left_out}
+    where that joint's torque is not fitted (`unfitted`, (records, nv): a motor that reports zero there has no
+    noise; a joint is never unfitted in every record, `_still_joints`)."""
     floors = np.array([noise_floor(r.data.tau) for r in records], dtype=float)
-    for i, r in enumerate(records):
-        for j, name in enumerate(r.data.joint_names):
-            if (r.data.source, name) in left:
-                floors[i, j] = np.nan
-    return np.nanmedian(floors, axis=0)  # a joint is never left out of every record (`_without_still_joints`)
+    return np.nanmedian(np.where(unfitted, np.nan, floors), axis=0)
 
 
-def _without_still_joints(
-    s: Signals, records: list[_Record], hinge: np.ndarray
-) -> tuple[Signals, list[dict[str, str]]]:
-    """The training signals with the torque of every joint that never moves in a record left out there
-    (`Signals.used`): static friction holds such a joint with any torque within its breakaway, which no column
-    explains, and fitted it would bias the parameters its other columns share (a link's mass against the torque
-    that held it). A joint still in every record is kept: there is nothing else to fit it on.
-
-    Returns:
-        (the signals, one {source, joint} per record and joint left out).
-    """
-    used = np.ones(s.tau.shape, bool)
+def _still_joints(records: list[_Record], hinge: np.ndarray) -> np.ndarray:
+    """(records, nv) True where a joint never moves in a training record and its torque there is left out of
+    the fit (`Signals.used`): static friction holds such a joint with any torque within its breakaway, which no
+    column explains, and fitted it would bias the parameters its other columns share (a link's mass against the
+    torque that held it). A joint still in every record is kept: there is nothing else to fit it on."""
+    still = np.zeros((len(records), len(hinge)), bool)
     for i, rec in enumerate(records):
-        for j in still_joints(rec.data, hinge):
-            used[s.record == i, j] = False
-    still_everywhere = ~np.any(used, axis=0)
-    used[:, still_everywhere] = True
-    left_out = [
-        {"source": rec.data.source, "joint": rec.data.joint_names[j]}
-        for i, rec in enumerate(records)
-        for j in still_joints(rec.data, hinge)
-        if not still_everywhere[j]
-    ]
-    if not left_out:
-        return s, []
-    return dataclasses.replace(s, used=used), left_out
+        still[i, still_joints(rec.data, hinge)] = True
+    still[:, np.all(still, axis=0)] = False
+    return still
+
+
+def _without(s: Signals, unfitted: np.ndarray) -> Signals:
+    """The signals with the torques of `unfitted` (records, nv) left out (`Signals.used`)."""
+    if not np.any(unfitted):
+        return s
+    return dataclasses.replace(s, used=~unfitted[s.record])
 
 
 _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle within a few)
@@ -826,21 +813,21 @@ def _final_fit(
             nominal = joint_torque(plant, q, s.dq, s.ddq)[0]
             jac = torque_jacobian_q(plant, q, s.dq, s.ddq)
             for c, j in offsets:
-                X[:, :, c] = s.zero_unused(s.smooth(-jac[:, :, j]))
+                X[:, :, c] = s.in_band(-jac[:, :, j])
         if gains:
             effects = np.einsum("knp,p->kn", X[:, :, others], fit.coef[others])
-            total = s.zero_unused(s.smooth(nominal)) + effects
+            total = s.in_band(nominal) + effects
             for c in gains:
                 row = np.flatnonzero(np.any(X[:, :, c] != 0, axis=0))
                 X[:, row, c] = total[:, row]
         lo_it, hi_it = lo.copy(), hi.copy()
         for c, j in offsets:  # the bounds hold for the total offset, the coefficient is its increment
             lo_it[c], hi_it[c] = lo[c] - shift[j], hi[c] - shift[j]
-        measured = s.zero_unused(s.smooth(s.tau - nominal))
+        measured = s.in_band(s.tau - nominal)
         fit = fit_columns(X, measured, weights, lower=lo_it, upper=hi_it, record=s.record, used=s.used)
         if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
-    left = s.zero_unused(s.smooth(s.tau - nominal)) - np.einsum("knp,p->kn", X, fit.coef)
+    left = measured - np.einsum("knp,p->kn", X, fit.coef)
     coef = fit.coef.copy()
     for c, j in offsets:
         coef[c] += shift[j]
@@ -873,6 +860,7 @@ def _findings(
     X: np.ndarray,
     s_tr: Signals,
     s_va: Signals,
+    cols_va: list[np.ndarray],
     weights: np.ndarray,
     names: tuple[str, ...],
     n_nuisance: int = 0,
@@ -880,7 +868,6 @@ def _findings(
 ) -> list[Finding]:
     out: list[Finding] = []
     offset = n_nuisance
-    cols_va = [s_va.columns(s.candidate)[:, :, s.kept] for s in steps]
     # NaN where a record's torque was left out of the fit: averaged over the records where it was estimated
     mean_offset = np.nanmean(record_offsets, axis=0) if record_offsets is not None and record_offsets.size else 0.0
     lo, hi = _step_bounds(steps, n_nuisance)
