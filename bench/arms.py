@@ -23,7 +23,7 @@ from omegaconf import OmegaConf
 import excitation.optimise as optimise
 from dynamics.plant import load_plant
 from harness.run import run
-from harness.setup import design_from_config, experiment_from_config, system_for_overrides, with_model_defaults
+from harness.setup import design_from_config, experiment_from_config, with_auto_system, with_model_defaults
 from tests.conftest import compose_config
 
 HERE = Path(__file__).resolve().parent
@@ -51,7 +51,7 @@ def _models() -> list[Path]:
 def _one_start(overrides: list[str], gradient: str) -> dict[str, Any]:
     """Time one optimisation from the default start with `gradient` (analytic or finite_difference); the
     finite-difference baseline is stopped from inside SLSQP once FD_BUDGET_S is spent."""
-    cfg = system_for_overrides(compose_config(overrides), overrides)
+    cfg = compose_config(with_auto_system(overrides))
     cfg = with_model_defaults(cfg, load_plant(cfg.system.mjcf))
     exp = experiment_from_config(cfg, np.random.default_rng(0))
     OmegaConf.update(cfg, "excitation.options.gradient", gradient)
@@ -79,7 +79,7 @@ def main() -> None:
     rows = []
     for model in _models():
         overrides = [f"system.mjcf={model}", "record=none"]
-        cfg = system_for_overrides(compose_config(overrides), overrides)
+        cfg = compose_config(with_auto_system(overrides))
         cpu = time.process_time()
         with tempfile.TemporaryDirectory() as tmp:
             r = run(cfg, output_dir=Path(tmp))

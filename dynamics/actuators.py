@@ -18,6 +18,7 @@ non-fixed gains are refused.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import mujoco
@@ -25,7 +26,7 @@ import numpy as np
 
 from dynamics.errors import ModelError
 
-__all__ = ["ACTUATOR_KINDS", "Actuation", "Actuator", "actuation_of"]
+__all__ = ["ACTUATOR_KINDS", "Actuation", "Actuator", "actuation_of", "as_motors"]
 
 ACTUATOR_KINDS = ("general", "motor", "position", "velocity")
 
@@ -58,6 +59,11 @@ class Actuator:
     @property
     def is_servo(self) -> bool:
         return self.kind in ("position", "velocity")
+
+    @property
+    def state_dependent(self) -> bool:
+        """Its force depends on the joint's angle or speed (b1, b2): its ctrl is no torque command."""
+        return bool(self.bias[1] != 0 or self.bias[2] != 0)
 
 
 def _kind(gain: float, bias_type: int, bias: np.ndarray) -> str:
@@ -172,3 +178,20 @@ def actuation_of(m: mujoco.MjModel, where: str) -> Actuation:
         names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[j])) for j in twice]
         raise ModelError(f"{where}: several actuators drive joint(s) {names}; at most one per joint is supported")
     return Actuation(acts, m.nv)
+
+
+def as_motors(m: mujoco.MjModel, where: str) -> mujoco.MjModel:
+    """`m`, or a copy in which every actuator whose force depends on the state (a servo: force = kp ctrl -
+    kp q - kv dq) is a plain motor, force = ctrl, unclamped in ctrl: driven by the joint torque it applied
+    (ctrl = tau / gear, a log's measured torque), as a replay needs. Motors and affine actuators with a
+    constant bias (a calibrated torque sensor) are kept."""
+    servos = [a for a, act in enumerate(actuation_of(m, where).actuators) if act.state_dependent]
+    if not servos:
+        return m
+    out = copy.deepcopy(m)
+    for a in servos:
+        out.actuator_biastype[a] = mujoco.mjtBias.mjBIAS_NONE
+        out.actuator_gainprm[a], out.actuator_biasprm[a] = 0.0, 0.0
+        out.actuator_gainprm[a, 0] = 1.0
+        out.actuator_ctrllimited[a] = 0
+    return out

@@ -31,6 +31,7 @@ from envs.measured import read_many
 from envs.split import split_train_validation
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim
+from harness.setup import CONF_DIR, with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
@@ -47,8 +48,6 @@ from identify.diagnose import (
 from identify.excitation_check import check_excitation
 
 __all__ = ["CONF_DIR", "data_paths", "main", "record_offsets", "reference_models", "run"]
-
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 def _output_dir(cfg: DictConfig) -> Path:
@@ -122,6 +121,19 @@ def data_paths(cfg: DictConfig) -> list[Path]:
     return out
 
 
+def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
+    """Refuse a filter frequency at or above the Nyquist frequency of the slowest file (known once read)."""
+    slowest = min(datasets, key=lambda d: 1.0 / d.dt)
+    nyquist = 0.5 / slowest.dt
+    key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
+    for name, value in (("diagnose.cutoff_hz", cfg.diagnose.get("cutoff_hz")), (key, _band_hz(cfg))):
+        if value is not None and float(value) >= nyquist:
+            raise ConfigError(
+                f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
+                f"{slowest.source} (sampled at {2 * nyquist:g} Hz)"
+            )
+
+
 def _band_hz(cfg: DictConfig) -> float | None:
     """The analysis band [Hz]: `diagnose.band_hz` when set, else the data config's `band_hz` (a property of the
     hardware the logs come from, such as the DFKI arm's structural vibration), else None (no band)."""
@@ -153,6 +165,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
     plant = load_plant(cfg.system.mjcf)
+    cfg = with_model_defaults(cfg, plant)
     outputs = ("diagnosis.rrd", f"{plant.name}_calibrated.xml", "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
         return _run(cfg, plant, folder)
@@ -174,6 +187,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         max_speed=cfg.data.get("max_speed"),
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
+    _check_below_nyquist(cfg, datasets)
     repairs = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
@@ -405,6 +419,7 @@ def _hydra_main(cfg: DictConfig) -> None:
 
 def main() -> None:
     """Console entry point `sysid-diagnose`: config-group values are checked before Hydra starts."""
+    sys.argv[1:] = with_auto_system(sys.argv[1:])
     try:
         check_command_line(sys.argv[1:], CONF_DIR, "diagnose")
         check_output_override(sys.argv[1:], ("diagnosis.json", "diagnosis.rrd"))

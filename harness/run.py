@@ -35,7 +35,7 @@ from harness.setup import (
     design_from_config,
     experiment_from_config,
     simulate_design,
-    system_for_overrides,
+    with_auto_system,
     with_model_defaults,
 )
 from harness.validate import ConfigError, check_command_line, check_driven, validate_run_config
@@ -271,13 +271,12 @@ def _hydra_output_dir() -> Path:
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
 def _hydra_main(cfg: DictConfig) -> None:
-    from hydra.core.hydra_config import HydraConfig
-
-    run_job(run, system_for_overrides(cfg, list(HydraConfig.get().overrides.task)))
+    run_job(run, cfg)
 
 
 def main() -> None:
     """Console entry point `sysid-run`: config-group values are checked (all of a sweep's) before Hydra starts."""
+    sys.argv[1:] = with_auto_system(sys.argv[1:])
     try:
         check_command_line(sys.argv[1:], CONF_DIR, "config")
         check_output_override(sys.argv[1:], OUTPUTS)

@@ -34,7 +34,7 @@ __all__ = [
     "limits_from_config",
     "sensor_from_config",
     "simulate_design",
-    "system_for_overrides",
+    "with_auto_system",
     "with_model_defaults",
 ]
 
@@ -47,24 +47,20 @@ def _plain(value: Any) -> float | list[float]:
     return [float(v) for v in value] if OmegaConf.is_list(value) else float(value)
 
 
-def system_for_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
-    """The config with the right system node for the command line's overrides.
+def with_auto_system(overrides: Sequence[str]) -> list[str]:
+    """The command line's overrides with `system=auto` put first where they name a robot by path.
 
-    `system.mjcf=<path>` without a `system=` choice names a robot with no system config of its own: its
-    system node becomes `conf/system/auto.yaml` (every null taken from the model, see `harness.defaults`),
-    with the command line's other `system.*` overrides applied. Any other command line keeps `cfg`.
+    `system.mjcf=<path>` without a `system=` choice names a robot with no system config of its own: its system
+    node is `conf/system/auto.yaml` (every null taken from the model, `harness.defaults`), so that every key of
+    that file can be overridden on the same line (`system.limits.clearance_m=0.05`). A built-in system's name
+    (`system.mjcf=two_link`), or a sweep over them only, keeps the default system config.
     """
-    keys = [o.split("=", 1)[0].lstrip("+~") for o in overrides]
-    if "system.mjcf" not in keys or "system" in keys or str(cfg.system.mjcf) in SYSTEMS:
-        return cfg
-    auto = OmegaConf.load(CONF_DIR / "system" / "auto.yaml")
-    for key in keys:
-        if key.startswith("system."):
-            OmegaConf.update(auto, key.removeprefix("system."), OmegaConf.select(cfg, key), force_add=True)
-    out = cfg.copy()
-    with open_dict(out):
-        out.system = auto
-    return out
+    out = list(overrides)
+    keys = {o.split("=", 1)[0].lstrip("+~") for o in out if "=" in o}
+    mjcf = [o.split("=", 1)[1] for o in out if o.split("=", 1)[0].lstrip("+~") == "system.mjcf" and "=" in o]
+    if not mjcf or "system" in keys or all(v in SYSTEMS for v in mjcf[-1].split(",")):
+        return out
+    return ["system=auto", *out]
 
 
 def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:

@@ -66,9 +66,11 @@ def _number(
     low: float | None = None,
     high: float | None = None,
     low_open: bool = False,
+    high_open: bool = False,
     optional: bool = False,
 ) -> float | None:
-    """The value at `key` as a number within [low, high] (`low_open`: (low, high]); names the key if not."""
+    """The value at `key` as a number within [low, high] (`low_open`: (low, ...; `high_open`: ..., high));
+    names the key if not."""
     raw = _value(cfg, key)
     if raw is None and optional:
         return None
@@ -80,8 +82,8 @@ def _number(
         raise ConfigError(f"{key} must be a finite number, got {raw!r}")
     if low is not None and (value < low or (low_open and value == low)):
         raise ConfigError(f"{key} must be {'>' if low_open else '>='} {low:g}, got {raw!r}")
-    if high is not None and value > high:
-        raise ConfigError(f"{key} must be <= {high:g}, got {raw!r}")
+    if high is not None and (value > high or (high_open and value == high)):
+        raise ConfigError(f"{key} must be {'<' if high_open else '<='} {high:g}, got {raw!r}")
     return value
 
 
@@ -166,6 +168,12 @@ def _check_harmonics(cfg: DictConfig) -> None:
     f0 = float(_number(cfg, "system.base_freq_hz", low=0.0, low_open=True) or 0.0)
     fs = float(_number(cfg, "system.sensor.sample_rate_hz", low=0.0, low_open=True) or 0.0)
     by_sampling = int(fs / 2.0 / (10.0 * f0))
+    if by_sampling < 1:
+        raise ConfigError(
+            f"system.base_freq_hz must be <= {fs / 20.0:g} at system.sensor.sample_rate_hz={fs:g}, got {f0:g}: "
+            f"the derivative filter cuts at 10 x the top harmonic, which must stay below the Nyquist frequency "
+            f"{fs / 2:g} Hz"
+        )
     limit = min(MAX_HARMONICS, by_sampling)
     if h > limit:
         why = (
@@ -218,11 +226,13 @@ def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
                 f"system.sensor.sample_rate_hz={fs:g} makes a record of {rows:.3g} samples; at most "
                 f"{MAX_RECORD_ROWS:.0e} are simulated (memory): lower {key} or the sample rate"
             )
-    _number(cfg, "identify.cutoff_hz", low=0.0, low_open=True, high=fs / 2.0, optional=True)
+    _number(cfg, "identify.cutoff_hz", low=0.0, low_open=True, high=fs / 2.0, high_open=True, optional=True)
     _number(cfg, "system.limits.range_margin", low=0.0, high=0.49)
+    if OmegaConf.select(cfg, "system.limits.clearance_m") is not None:
+        _number(cfg, "system.limits.clearance_m", low=0.0)
     _number(cfg, "system.limits.torque_margin", low=0.0, low_open=True, high=1.0)
     _number(cfg, "system.sensor.tau_resolution", low=0.0)
-    _number(cfg, "system.controller.bandwidth_hz", low=0.0, low_open=True, high=fs / 2.0)
+    _number(cfg, "system.controller.bandwidth_hz", low=0.0, low_open=True, high=fs / 2.0, high_open=True)
     _number(cfg, "noise.sigma_q", low=0.0)
     _number(cfg, "noise.q_resolution", low=0.0)
     _number(cfg, "noise.tau_scale", low=0.0)

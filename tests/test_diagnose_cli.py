@@ -132,6 +132,16 @@ def test_record_offsets_must_be_a_flag(csv_files: list[Path], tmp_path: Path) ->
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("key", ["diagnose.band_hz", "diagnose.cutoff_hz"])
+def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
+    csv_files: list[Path], tmp_path: Path, key: str
+) -> None:
+    """Known once the files are read (their rate), named by its key and the file; nothing is written."""
+    with pytest.raises(ConfigError, match=rf"{key}=300 Hz is not below the Nyquist frequency 250 Hz of .*\.csv"):
+        cli.run(_config(csv_files, tmp_path, f"{key}=300"))
+    assert not any(tmp_path.iterdir())
+
+
 def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
     """A pendulum barely swinging about its rest position cannot tell its inertia from its mass moments."""
     plant = load_plant("pendulum")

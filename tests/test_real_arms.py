@@ -23,7 +23,7 @@ from dynamics.plant import load_plant
 from dynamics.sampling import random_states
 from dynamics.torque import joint_torque
 from harness.run import run
-from harness.setup import system_for_overrides
+from harness.setup import with_auto_system
 from tests.conftest import compose_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -52,8 +52,8 @@ FAST = ["record=none", "excitation.options.starts=1", "system.periods=2", "valid
 
 
 def _run(model: Path, tmp_path: Path, overrides: list[str] | None = None) -> dict:
-    overrides = [f"system.mjcf={model}", *(FAST if overrides is None else overrides)]
-    cfg = system_for_overrides(compose_config(overrides), overrides)
+    overrides = with_auto_system([f"system.mjcf={model}", *(FAST if overrides is None else overrides)])
+    cfg = compose_config(overrides)
     return run(cfg, tmp_path / "run")
 
 

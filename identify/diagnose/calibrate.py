@@ -45,6 +45,7 @@ import mujoco
 import numpy as np
 from scipy import optimize
 
+from dynamics.actuators import actuation_of
 from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed
 from dynamics.inertia import (
     body_and_jacobian,
@@ -436,6 +437,12 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         gain, off = float(ext.torque_gain[j]), float(ext.torque_offset[j])
         if gain == 1.0 and off == 0.0:
             continue
+        if plant.actuation.actuators[a].state_dependent:
+            ext.notes.append(
+                f"{plant.joint_names[j]}: a torque gain or offset on a servo actuator (its force depends on the "
+                "joint's state, its ctrl is a set point) has no actuator attribute to hold it; left out"
+            )
+            continue
         act = spec.actuators[a]
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         act.gainprm[0] = float(m.actuator_gainprm[a, 0]) / gain
@@ -547,7 +554,9 @@ def mjcf_measured_torque(
         delay = _numeric(model, f"sysid_time_delay_{name}")
         if delay is not None and delay[0] != 0:
             out[:, j] = np.interp(time - float(delay[0]), time, applied[:, j])
-    for a in range(model.nu):
+    for a, act in enumerate(actuation_of(model, "the calibrated MJCF").actuators):
+        if act.state_dependent:
+            continue  # a servo reports the force it applies: no sensor mapping to invert
         j = int(model.jnt_dofadr[model.actuator_trnid[a, 0]])
         gear, gain, bias = float(model.actuator_gear[a, 0]), float(model.actuator_gainprm[a, 0]), 0.0
         if model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE:

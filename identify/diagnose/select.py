@@ -161,7 +161,9 @@ def _span_free(basis: np.ndarray, cols: np.ndarray, tol: float = 1e-6) -> list[i
 
 
 def _solve_gram(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """argmin x'Gx - 2c'x within lo <= x <= hi (least squares in normal-equation form)."""
+    """argmin x'Gx - 2c'x within lo <= x <= hi (least squares in normal-equation form); 0 where G is 0."""
+    if not np.any(np.diag(G) > 0):  # no column is touched (no coefficient, or nothing in these rows)
+        return np.clip(np.zeros(len(c)), lo, hi)
     scale = 1.0 / np.sqrt(np.maximum(np.diag(G), 1e-300))
     Gs, cs = G * np.outer(scale, scale), c * scale
     w, V = np.linalg.eigh(Gs)

@@ -16,6 +16,8 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from dynamics.actuators import as_motors
+
 __all__ = ["SimulationError", "mujoco_stepper", "ode_stepper", "simulation_error"]
 
 # (q0 (B, nv), dq0 (B, nv), tau (B, n_step, nv), dt) -> q (B, n_step, nv) after each step
@@ -43,7 +45,9 @@ _BATCH = 1000  # windows simulated in one batch
 
 
 def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
-    """A batched stepper over `mujoco.rollout` for an MJCF whose actuators drive joints directly, and its dt."""
+    """A batched stepper over `mujoco.rollout` for an MJCF, driven by joint torques through its actuators
+    (servos made plain motors, `dynamics.actuators.as_motors`), and its dt."""
+    model = as_motors(model, "the replayed model")
     act_joint = np.array([int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) for a in range(model.nu)], dtype=int)
     gear = model.actuator_gear[:, 0].copy()
     spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -110,7 +114,9 @@ def simulation_error(
         starts.append(k)
         k = int(np.searchsorted(time, time[k] + n_step * dt, side="left"))
     if not starts:
-        raise ValueError(f"the record ({time[-1] - time[0]:.3f} s) is shorter than one {window_s} s window")
+        raise ValueError(
+            f"the record ({time[-1] - time[0]:.3f} s) is shorter than one window (window_s = {window_s} s)"
+        )
     times, sims, refs = [], [], []
     for first in range(0, len(starts), _BATCH):  # a batch of windows at a time: memory stays that of a batch
         idx = np.array(starts[first : first + _BATCH])

@@ -1,0 +1,118 @@
+"""A robot driven by position servos (as most MuJoCo Menagerie arms are) through the diagnosis, and a robot named
+by path on the command line: the replay drives the joints by the torque the servos applied, a calibrated file's
+torque is the servos' force (no sensor mapping), and `system.mjcf=<path>` takes `conf/system/auto.yaml`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from dynamics.actuators import as_motors
+from dynamics.plant import plant_from_xml
+from dynamics.torque import inverse_dynamics
+from envs.sensors import SensorModel
+from envs.simulate import simulate_tracking
+from excitation.designs import default_design
+from excitation.limits import limits_for
+from harness.setup import with_auto_system
+from identify.derivatives import derive_states
+from identify.diagnose import diagnose
+from identify.diagnose.calibrate import mjcf_measured_torque
+from identify.diagnose.select import _solve_gram
+from identify.diagnose.simulation_error import mujoco_stepper, simulation_error
+from tests.conftest import compose_config
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _servo_two_link(directory: Path):  # type: ignore[no-untyped-def]
+    """The built-in two-link arm with its motors replaced by position servos (kp 60, kv 4)."""
+    spec = mujoco.MjSpec.from_file(str(REPO / "mjcf" / "two_link.xml"))
+    for act in list(spec.actuators):
+        spec.delete(act)
+    for name in ("shoulder", "elbow"):
+        act = spec.add_actuator()
+        act.name, act.target = name, name
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.set_to_position(kp=60.0, kv=4.0)
+        act.forcelimited, act.forcerange = True, [-12.0, 12.0]
+    return plant_from_xml(spec.to_xml(), "servo_two_link", directory)
+
+
+def _servo_data(tmp_path: Path):  # type: ignore[no-untyped-def]
+    plant = _servo_two_link(tmp_path)
+    assert plant.actuation.servo
+    limits = limits_for(plant, velocity=4.0, acceleration=30.0, range_margin=0.05, torque_margin=0.9)
+    design = default_design(plant, limits, harmonics=4, base_freq_hz=0.2, torque_driven=False)
+    sensor = SensorModel(500.0, sigma_q=1.7e-5, q_resolution=2.4e-5, sigma_tau=np.array([0.02, 0.02]))
+    rng = np.random.default_rng(3)
+    train = simulate_tracking(plant, design, duration_s=10.0, sensor=sensor, rng=rng, nominal=plant)
+    val = simulate_tracking(plant, design, duration_s=5.0, sensor=sensor, rng=rng, nominal=plant)
+    return plant, train, val
+
+
+def test_a_replay_drives_servos_by_the_torque_they_applied(tmp_path: Path) -> None:
+    """Replayed with its own applied torque, a servo arm's own model follows its motion (a servo driven with
+    the torque as its set point, as before, ran off by radians)."""
+    plant, data, _ = _servo_data(tmp_path)
+    states = derive_states(data, "butterworth", cutoff_hz=10.0)
+    rows = states.valid
+    err = simulation_error(
+        mujoco_stepper(plant.mj_model), data.time[rows], states.q[rows], states.dq[rows], data.tau[rows], window_s=0.25
+    )
+    assert np.all(err.rms < 0.01), err.rms
+    motors = as_motors(plant.mj_model, "test")
+    assert np.all(motors.actuator_biasprm[:, :3] == 0) and np.all(motors.actuator_gainprm[:, 0] == 1)
+    assert np.all(plant.mj_model.actuator_biasprm[:, 1] == -60.0)  # the model itself is not changed
+
+
+def test_clean_servo_data_have_a_small_simulation_error_and_no_discrepancy(tmp_path: Path) -> None:
+    plant, train, val = _servo_data(tmp_path)
+    dg = diagnose(plant, [train], [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0})
+    assert dg.verdict == "no_discrepancy", (dg.verdict, [f.name for f in dg.findings])
+    sim = dg.models["nominal"]["simulation_error"]
+    assert max(sim.values()) < 0.02, sim
+
+
+def test_a_servo_model_reports_the_force_it_applies(tmp_path: Path) -> None:
+    """No sensor mapping is inverted for a servo (dividing by its kp, as before, gave torque / 60)."""
+    plant = _servo_two_link(tmp_path)
+    rng = np.random.default_rng(0)
+    q, dq, ddq = (rng.uniform(-1, 1, (50, 2)) for _ in range(3))
+    expected = inverse_dynamics(plant.mj_model, q, dq, ddq)
+    got = mjcf_measured_torque(plant.mj_model, np.arange(50) * 0.002, q, dq, ddq)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12)
+
+
+def test_a_robot_named_by_path_takes_the_auto_system_config() -> None:
+    path = str(REPO / "mjcf" / "two_link.xml")
+    assert with_auto_system([f"system.mjcf={path}", "record=none"]) == [
+        "system=auto",
+        f"system.mjcf={path}",
+        "record=none",
+    ]
+    for unchanged in (
+        ["system.mjcf=two_link"],
+        ["system.mjcf=two_link,pendulum"],
+        ["system=arm3", f"system.mjcf={path}"],
+    ):
+        assert with_auto_system(unchanged) == unchanged
+    assert with_auto_system(["record=none"]) == ["record=none"]
+    # every key of auto.yaml can be overridden on the same line (the two-link config has no clearance key)
+    cfg = compose_config(with_auto_system([f"system.mjcf={path}", "system.limits.clearance_m=0.05"]))
+    assert cfg.system.limits.clearance_m == 0.05 and cfg.system.effects is None
+    cfg = compose_config(with_auto_system([f"system.mjcf={path}"]), "diagnose")
+    assert cfg.system.effects is None  # filled from the model by the diagnosis (`with_model_defaults`)
+
+
+def test_a_fold_with_no_column_touched_has_zero_coefficients() -> None:
+    """A fold whose training rows touch none of the columns (a weakly excited record) fits nothing, instead
+    of failing on an empty eigenvalue list."""
+    none = _solve_gram(np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0))  # no column seen at all
+    assert none.shape == (0,)
+    x = _solve_gram(np.zeros((3, 3)), np.zeros(3), np.full(3, -np.inf), np.full(3, np.inf))
+    np.testing.assert_array_equal(x, np.zeros(3))
+    x = _solve_gram(np.zeros((2, 2)), np.zeros(2), np.array([0.1, -np.inf]), np.full(2, np.inf))
+    np.testing.assert_array_equal(x, [0.1, 0.0])
