@@ -1,9 +1,11 @@
 """Measured joint data from CSV files: column mapping, input checks and repairs.
 
 `read_measured` reads one CSV with a header row (the measured-data format of DESIGN.md, or any other layout
-through a column mapping) into a `Dataset` of a plant's joints. Every message names the file, the column (the
-file's name, then ours) and the row: `row k` counts data rows from 0, `line` is the line of the file (the
-header is line 1). Nothing questionable reaches a fit silently:
+through a column mapping) into a `Dataset` of a plant's joints. The file may be gzip-compressed, UTF-8 (with or
+without a byte-order mark), UTF-16 or UTF-32 text, with any line ends; cells may be quoted, and the columns not
+used are not converted (they may hold text). Every message names the file, the column (the file's name, then
+ours) and the row: `row k` counts data rows from 0, `line` is the line of the file (the header is line 1).
+Nothing questionable reaches a fit silently:
 
 - refused with `DataError`: missing or unknown columns, cells that are not numbers, NaN or inf, time that
   goes backwards or repeats, a gap in the sampling too long to interpolate, angles that look like degrees (or
@@ -21,12 +23,17 @@ parameter asked for; `envs.split.split_train_validation` holds data out by file 
 
 from __future__ import annotations
 
+import codecs
 import csv
+import gzip
+import re
 import warnings
-from collections.abc import Mapping, Sequence
+import zlib
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -50,6 +57,15 @@ _MIN_SAMPLE_RATE_HZ = 5.0  # slower sampling is a time column in other units (ms
 _MAX_SAMPLE_RATE_HZ = 1e5
 _RATE_WINDOW = 2 * _GLITCH_MAX_RUN + 1  # steps in the running median that bounds the speed without dq
 _SNIFF_BYTES = 1 << 16
+_GZIP_MAGIC = b"\x1f\x8b"
+_GZIP_ERRORS = (EOFError, gzip.BadGzipFile, zlib.error)
+_ENCODINGS = (  # byte-order mark, its codec without the mark, the codec that reads the file (and skips it)
+    (codecs.BOM_UTF32_LE, "utf-32-le", "utf-32"),  # before UTF-16: its mark begins with UTF-16 LE's
+    (codecs.BOM_UTF32_BE, "utf-32-be", "utf-32"),
+    (codecs.BOM_UTF16_LE, "utf-16-le", "utf-16"),
+    (codecs.BOM_UTF16_BE, "utf-16-be", "utf-16"),
+    (codecs.BOM_UTF8, "utf-8", "utf-8-sig"),
+)
 _BLOCK_ROWS = 200_000  # rows read at a time: a block of a wide file is a few tens of MB
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
 
@@ -92,7 +108,7 @@ def read_measured(
     """Read one CSV file of joint data into a dataset of `plant`'s joints, checking and repairing it.
 
     Args:
-        path: CSV file with a header row.
+        path: CSV file with a header row (or such a file gzip-compressed, whatever its name).
         plant: the system the data belong to; its joint names and actuators decide the columns needed:
             `time`, `q_<joint>` for every joint, `tau_<joint>` for every actuated joint, and optionally
             `dq_<joint>` (all joints) and `tau_cmd_<joint>` (all actuated joints).
@@ -120,14 +136,15 @@ def read_measured(
     """
     path = Path(path)
     src = str(path)
-    header, delimiter = _read_header(path)
+    file = _text_file(path)
+    header, delimiter = _read_header(file)
     sources, ignored = _resolve_columns(plant, header, columns, src)
-    arrays, values, rows_read = _read_body(path, header, delimiter, sources, plant)
-    labels = {name: f"column '{c.name}'" + (f" ({name})" if c.name != name else "") for name, c in sources.items()}
+    labels = _labels(sources)
+    arrays, values, rows_read = _read_body(file, header, delimiter, sources, labels, plant)
+    _check_length(rows_read, max(min_samples, 2), src, "rows")  # first: the checks below need a time step
     _check_finite(values, labels, src)
     t = values["time"]
     _check_time(t, labels["time"], src)
-    _check_length(len(t), min_samples, src, "rows")
     names = plant.joint_names
     del values
     _check_angle_units(plant, t, arrays, labels, src)
@@ -245,8 +262,40 @@ def read_many(
     return datasets
 
 
-def _check_readable(path: Path) -> None:
-    """A regular, readable text file: the message says what it is instead (folder, binary, not UTF-8)."""
+@dataclass(frozen=True)
+class _TextFile:
+    """How a data file is read as text: gzip-compressed or not, and its encoding (a Python codec)."""
+
+    path: Path
+    compressed: bool
+    encoding: str  # utf-8-sig (a byte-order mark or none), utf-16 or utf-32 (after their byte-order mark)
+
+    @contextmanager
+    def open(self, newline: str | None = "") -> Iterator[TextIO]:
+        """The file as text; `newline=""` splits lines at LF, CR LF and CR alike and leaves them as they are.
+
+        Raises:
+            DataError: a byte that is not text in the encoding, or a compressed stream that is cut or corrupt.
+        """
+        try:
+            if self.compressed:
+                f: TextIO = gzip.open(self.path, "rt", encoding=self.encoding, newline=newline)
+            else:
+                f = self.path.open(encoding=self.encoding, newline=newline)
+            with f:
+                yield f
+        except UnicodeDecodeError as err:
+            name = self.encoding.removesuffix("-sig").upper()
+            raise DataError(
+                f"{self.path}: not {name} text ({err.reason} at byte {err.start} of a block): save it as UTF-8"
+            ) from None
+        except _GZIP_ERRORS as err:
+            raise _bad_gzip(self.path, err) from None
+
+
+def _text_file(path: Path) -> _TextFile:
+    """How to read `path` as text: gzip is decompressed, UTF-16 and UTF-32 are decoded after their byte-order
+    mark. Anything else than a readable text file is refused, saying what it is (folder, binary, not UTF-8)."""
     if path.is_dir():
         raise DataError(f"{path}: is a folder, not a file; give the CSV file inside it")
     if not path.exists():
@@ -254,38 +303,47 @@ def _check_readable(path: Path) -> None:
     try:
         with path.open("rb") as f:
             head = f.read(_SNIFF_BYTES)
+        compressed = head.startswith(_GZIP_MAGIC)
+        if compressed:
+            with gzip.open(path, "rb") as g:
+                head = g.read(_SNIFF_BYTES)
     except PermissionError:
         raise DataError(f"{path}: cannot be read: permission denied") from None
+    except _GZIP_ERRORS as err:  # BadGzipFile is an OSError: caught first
+        raise _bad_gzip(path, err) from None
     except OSError as err:
         raise DataError(f"{path}: cannot be read: {err.strerror or err}") from None
-    nul = head.find(b"\0")
-    if nul >= 0:
-        line = head[:nul].count(b"\n") + 1
-        raise DataError(f"{path}: a binary file (a NUL byte at byte {nul}, line {line}), not CSV text")
-    try:
-        head.decode("utf-8")
+    bom, bare, encoding = next((e for e in _ENCODINGS if head.startswith(e[0])), (b"", "utf-8", "utf-8-sig"))
+    if bare == "utf-8":  # NUL bytes are text in UTF-16 and UTF-32, in UTF-8 a binary file
+        nul = head.find(b"\0")
+        if nul >= 0:
+            line = head[:nul].count(b"\n") + 1
+            raise DataError(f"{path}: a binary file (a NUL byte at byte {nul}, line {line}), not CSV text")
+    try:  # a character cut at the end of the sniffed block is left pending, not refused
+        codecs.getincrementaldecoder(bare)().decode(head[len(bom) :], final=len(head) < _SNIFF_BYTES)
     except UnicodeDecodeError as err:
-        if len(head) < _SNIFF_BYTES or err.start < len(head) - 4:  # not a character cut by the sniffed block
-            raise _not_utf8(path, head, err.start) from None
+        raise _not_text(path, head, len(bom) + err.start, bare) from None
+    return _TextFile(path, compressed, encoding)
 
 
-def _not_utf8(path: Path, data: bytes, at: int) -> DataError:
+def _bad_gzip(path: Path, err: Exception) -> DataError:
+    return DataError(f"{path}: a gzip-compressed file that cannot be decompressed (cut short or corrupt): {err}")
+
+
+def _not_text(path: Path, data: bytes, at: int, encoding: str) -> DataError:
     line = data[:at].count(b"\n") + 1
     return DataError(
-        f"{path}: not UTF-8 text (byte 0x{data[at]:02x} at byte {at}, line {line}); save the file as UTF-8 (or "
-        "plain ASCII) CSV"
+        f"{path}: not {encoding.upper()} text (byte 0x{data[at]:02x} at byte {at}, line {line}); save the file as "
+        "UTF-8 (or plain ASCII) CSV"
     )
 
 
-def _read_header(path: Path) -> tuple[list[str], str]:
+def _read_header(file: _TextFile) -> tuple[list[str], str]:
     """The column names of line 1, and the delimiter they are separated by (a comma; a semicolon or a tab as
     spreadsheets export them are read too)."""
-    _check_readable(path)
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as f:
-            first = f.readline()
-    except UnicodeDecodeError as err:
-        raise DataError(f"{path}: the header row (line 1) cannot be read as text: {err}") from None
+    path = file.path
+    with file.open() as f:
+        first = f.readline()
     if not first.strip():
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
     if first.lstrip().startswith("#"):
@@ -303,34 +361,70 @@ def _read_header(path: Path) -> tuple[list[str], str]:
     return header, delimiter
 
 
-def _line_count(path: Path) -> int:
-    """Newlines in the file, plus one for a last line without one: an upper bound on its data rows + 1."""
-    count, last = 0, b"\n"
-    with path.open("rb") as f:
-        while block := f.read(1 << 24):
-            count += block.count(b"\n")
-            last = block[-1:]
-    return count + (last != b"\n")
+def _line_count(file: _TextFile) -> int:
+    """Lines of the file (LF, CR LF or CR ended), the last one counted without its end too: an upper bound on
+    its data rows + 1."""
+    count, last = 0, "\n"
+    with file.open(newline=None) as f:  # universal newlines: every line ends in "\n" here
+        while block := f.read(1 << 22):
+            count += block.count("\n")
+            last = block[-1]
+    return count + (last != "\n")
+
+
+def _data_lines(lines: Iterable[str], n_fields: int, delimiter: str, path: Path) -> Iterator[str]:
+    """The data rows of the lines after the header (line 2 on), one line each: blank lines are skipped.
+
+    Only a line with another number of delimiters than the header's, or with a double quote, is split as CSV
+    to count its fields; the others go on as they are (this runs once per line of a long file).
+
+    Raises:
+        DataError: a row with another number of fields than the header, or with a double quote left open (which
+            would swallow the lines after it).
+    """
+    blank = 0
+    for line, text in enumerate(lines, start=2):
+        if text.count(delimiter) != n_fields - 1 or '"' in text:
+            if not text.rstrip("\r\n"):  # as numpy's reader: a line of spaces is a row of one field
+                blank += 1
+                continue
+            row = line - 2 - blank
+            if text.count('"') % 2:
+                raise DataError(
+                    f'{path}: row {row} (line {line}) has an unmatched double quote ("); a quoted cell must end on '
+                    "its own line"
+                )
+            fields = len(next(csv.reader([text], delimiter=delimiter)))
+            if fields != n_fields:
+                raise DataError(f"{path}: row {row} (line {line}) has {fields} fields; the header has {n_fields}")
+        yield text
 
 
 def _read_body(
-    path: Path, header: list[str], delimiter: str, sources: dict[str, _Column], plant: Plant
+    file: _TextFile,
+    header: list[str],
+    delimiter: str,
+    sources: dict[str, _Column],
+    labels: dict[str, str],
+    plant: Plant,
 ) -> tuple[dict[str, np.ndarray | None], dict[str, np.ndarray], int]:
     """The used columns, read block by block (numpy's C reader) straight into the (N, nv) arrays of the dataset:
-    memory is the dataset itself plus one block, whatever the file's length.
+    memory is the dataset itself plus one block, whatever the file's length. The other columns are not converted
+    (they may hold text); quoted numbers are read.
 
     Returns:
         arrays: q, dq, tau, tau_cmd ((N, nv); dq and tau_cmd None when absent).
         values: each used column by our name, as a view into `arrays`.
         rows: the data rows read.
     """
+    path = file.path
     names, nv, act = plant.joint_names, plant.nv, [j for j in range(plant.nv) if plant.actuated[j]]
     for keys in ([f"dq_{n}" for n in names], [f"tau_cmd_{names[j]}" for j in act]):
         present = [k in sources for k in keys]
         if any(present) and not all(present):
             lacking = [k for k, p in zip(keys, present, strict=True) if not p]
             raise DataError(f"{path}: missing column(s) {', '.join(lacking)}: give them for every joint or for none")
-    capacity = max(_line_count(path) - 1, 1)
+    capacity = max(_line_count(file) - 1, 1)
     arrays: dict[str, np.ndarray | None] = {
         "time": np.empty(capacity),
         "q": np.empty((capacity, nv)),
@@ -349,28 +443,41 @@ def _read_body(
         assert out is not None
         return out if j is None else out[:, j]
 
+    usecols = sorted({c.index for c in sources.values()})
+    position = {index: k for k, index in enumerate(usecols)}  # a file column's place in the table read
+    # every column converted: numpy checks each row's field count itself, and a quote left open can only swallow
+    # lines into a cell that is then no number, so the lines need no check on the way (10-20 % of the time)
+    every = len(usecols) == len(header)
     n = 0
-    with path.open(newline="", encoding="utf-8-sig") as f:
+    with file.open() as f:
         f.readline()
+        lines = f if every else _data_lines(f, len(header), delimiter, path)
         while True:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", UserWarning)  # the empty read after the last block
-                    table = np.loadtxt(f, delimiter=delimiter, ndmin=2, max_rows=_BLOCK_ROWS, comments=None)
-            except UnicodeDecodeError as err:
-                raise DataError(
-                    f"{path}: not UTF-8 text ({err.reason} at byte {err.start} of a block): save it as UTF-8"
-                ) from None
+                    table = np.loadtxt(
+                        lines,
+                        delimiter=delimiter,
+                        ndmin=2,
+                        max_rows=_BLOCK_ROWS,
+                        comments=None,
+                        usecols=None if every else usecols,
+                        quotechar='"',
+                    )
+            except (DataError, UnicodeDecodeError):  # both ValueErrors: from the lines, not from a cell
+                raise
             except ValueError as err:
-                _locate_bad_cell(path, header, delimiter)
+                _locate_bad_cell(file, len(header), delimiter, sources, labels)
                 raise DataError(f"{path}: cannot read the rows as numbers: {err}") from err
             if table.shape[0] == 0:
                 break
-            if table.shape[1] != len(header):
+            if table.shape[1] != len(usecols):  # every column converted, and the rows have another number of them
+                _locate_bad_cell(file, len(header), delimiter, sources, labels)
                 raise DataError(f"{path}: rows have {table.shape[1]} fields but the header names {len(header)} columns")
             m = min(len(table), capacity - n)
             for name, c in sources.items():
-                target(name)[n : n + m] = _scaled(table[:m, c.index], c)
+                target(name)[n : n + m] = _scaled(table[:m, position[c.index]], c)
             n += m
             if m < len(table) or len(table) < _BLOCK_ROWS:
                 break
@@ -382,29 +489,49 @@ def _read_body(
     return arrays, values, n
 
 
-def _locate_bad_cell(path: Path, header: list[str], delimiter: str = ",") -> None:
-    with path.open(newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f, delimiter=delimiter)
-        next(reader)
-        for row, cells in enumerate(c for c in reader if c):
-            line = reader.line_num
-            if len(cells) != len(header):
-                raise DataError(
-                    f"{path}: row {row} (line {line}) has {len(cells)} fields; the header has {len(header)}"
-                )
-            for name, cell in zip(header, cells, strict=True):
+def _locate_bad_cell(
+    file: _TextFile, n_fields: int, delimiter: str, sources: dict[str, _Column], labels: dict[str, str]
+) -> None:
+    """Raise a `DataError` naming the first row numpy's reader could not take, if any: one with another number of
+    fields than the header (or a quote left open), or a cell of a used column that is not a number."""
+    used = sorted((c.index, name) for name, c in sources.items())
+    line = 1
+
+    def numbered(f: TextIO) -> Iterator[str]:  # `line` is the line of the row last read
+        nonlocal line
+        for text in f:
+            line += 1
+            yield text
+
+    with file.open() as f:
+        f.readline()
+        rows = csv.reader(_data_lines(numbered(f), n_fields, delimiter, file.path), delimiter=delimiter)
+        for row, cells in enumerate(rows):
+            for index, name in used:
                 try:
-                    float(cell)
+                    float(cells[index])
                 except ValueError:
-                    comma = (
-                        "," in cell
-                        and delimiter != ","
-                        and cell.replace(",", ".", 1).replace(".", "", 1).strip("+-").isdigit()
-                    )
-                    hint = " (a decimal comma? write numbers with a decimal point)" if comma else ""
                     raise DataError(
-                        f"{path}: column '{name}', row {row} (line {line}): {cell!r} is not a number{hint}"
+                        f"{file.path}: {labels[name]}, row {row} (line {line}): {cells[index]!r} is not a number"
+                        f"{_cell_hint(cells[index], name, delimiter)}"
                     ) from None
+
+
+def _cell_hint(cell: str, name: str, delimiter: str) -> str:
+    """Why a cell may not be a number: a decimal comma, or a date or clock time in the time column."""
+    if "," in cell and delimiter != "," and cell.replace(",", ".", 1).replace(".", "", 1).strip("+-").isdigit():
+        return " (a decimal comma? write numbers with a decimal point)"
+    if name == "time" and re.search(r"\d[-:/]\d", cell):
+        return (
+            " (a date or clock time? the harness expects time in seconds as a number: convert the time stamps to "
+            "seconds, e.g. since the first row)"
+        )
+    return ""
+
+
+def _labels(sources: dict[str, _Column]) -> dict[str, str]:
+    """How messages name each used column: the file's name, then ours where they differ."""
+    return {name: f"column '{c.name}'" + (f" ({name})" if c.name != name else "") for name, c in sources.items()}
 
 
 def _targets(plant: Plant) -> dict[str, bool]:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import codecs
+import gzip
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -466,3 +469,130 @@ def test_semicolon_and_tab_separated_files_read_like_commas(tmp_path: Path, plan
     data = read_measured(path, plant)
     np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
     np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])
+
+
+def with_lines(path: Path, edit: Callable[[int, str], str], *, end: str = "\n") -> Path:
+    """Rewrite every line of a file: `edit(k, text)` gets the line's index (0: the header) and text."""
+    path.write_text(end.join(edit(k, text) for k, text in enumerate(path.read_text().splitlines())) + end)
+    return path
+
+
+@pytest.mark.parametrize("mapped", [False, True])
+def test_unused_text_columns_are_ignored(tmp_path: Path, plant: Plant, mapped: bool) -> None:
+    """A comment, a status word or a clock time beside the data is not read (the reviewer's `comment` column)."""
+    cols = table()
+    extra = ["comment", "stamp", "status"]
+
+    def annotated(path: Path) -> Path:
+        return with_lines(
+            path,
+            lambda k, text: text + (",".join(["", *extra]) if k == 0 else f",hello,2024-01-01T00:00:{k % 60:02d},ok"),
+        )
+
+    mapping = {"q_elbow": "q_elbow", "time": "time"} if mapped else None
+    data = read_measured(annotated(write(tmp_path / "notes.csv", cols)), plant, columns=mapping)
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    np.testing.assert_array_equal(data.time, cols["time"])
+    assert data.meta["ignored_columns"] == tuple(extra)
+    # only the columns used must be numbers: a bad cell there is still located
+    bad = annotated(write(tmp_path / "bad.csv", cols, cell=("tau_elbow", 7, "n/a")))
+    with pytest.raises(DataError, match=r"bad\.csv: column 'tau_elbow', row 7 \(line 9\): 'n/a' is not a number$"):
+        read_measured(bad, plant, columns=mapping)
+
+
+def test_a_clock_time_mapped_to_time_asks_for_seconds(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    path = with_lines(
+        write(tmp_path / "stamped.csv", cols),
+        lambda k, text: text + (",stamp" if k == 0 else f",2024-01-01T00:00:{k % 60:02d}.000"),
+    )
+    with pytest.raises(
+        DataError,
+        match=r"column 'stamp' \(time\), row 0 \(line 2\): '2024-01-01T00:00:01\.000' is not a number \(a date or "
+        r"clock time\? the harness expects time in seconds",
+    ):
+        read_measured(path, plant, columns={"time": "stamp"})
+
+
+def test_quoted_cells_are_read(tmp_path: Path, plant: Plant) -> None:
+    """pandas' QUOTE_ALL quotes every cell, numbers too; a quoted text cell may hold the delimiter."""
+    cols = table()
+    path = with_lines(
+        write(tmp_path / "quoted.csv", cols),
+        lambda k, text: ",".join(f'"{c}"' for c in text.split(",")) + (',"note"' if k == 0 else ',"a, ""b"""'),
+    )
+    data = read_measured(path, plant)
+    np.testing.assert_array_equal(data.q[:, 0], cols["q_shoulder"])
+    np.testing.assert_array_equal(data.tau[:, 1], cols["tau_elbow"])
+    assert data.meta["ignored_columns"] == ("note",)
+
+
+@pytest.mark.parametrize("note", [False, True])  # every column converted, or one left as text
+def test_a_quote_left_open_is_refused(tmp_path: Path, plant: Plant, note: bool) -> None:
+    """An open quote would swallow the lines after it into one cell."""
+    path = with_lines(
+        write(tmp_path / "open.csv", table()),
+        lambda k, text: text.replace(",", ',"', 1) if k == 41 else text + (("," + ("note" if k == 0 else "x")) * note),
+    )
+    with pytest.raises(DataError, match=r"open\.csv: row 40 \(line 42\) has an unmatched double quote"):
+        read_measured(path, plant)
+
+
+@pytest.mark.parametrize("note", [False, True])
+def test_a_row_with_another_number_of_fields_is_located(tmp_path: Path, plant: Plant, note: bool) -> None:
+    path = with_lines(
+        write(tmp_path / "ragged.csv", table()),
+        lambda k, text: text + (",note" if k == 0 and note else ",x" * note + ",1" * (k == 300)),
+    )
+    with pytest.raises(DataError, match=rf"ragged\.csv: row 299 \(line 301\) has {8 + note} fields; the header has"):
+        read_measured(path, plant)
+
+
+def test_a_trailing_comma_on_every_line_is_ignored(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    path = with_lines(write(tmp_path / "trailing.csv", cols), lambda k, text: text + ",")
+    data = read_measured(path, plant)
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    assert data.meta["ignored_columns"] == ("",)
+
+
+@pytest.mark.parametrize("end", ["\r", "\r\n"])
+def test_old_mac_and_windows_line_ends_are_read(tmp_path: Path, plant: Plant, end: str) -> None:
+    cols = table()
+    path = with_lines(write(tmp_path / "ends.csv", cols), lambda k, text: text, end=end)
+    data = read_measured(path, plant)
+    assert data.meta["rows_read"] == 1000
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+
+
+@pytest.mark.parametrize("form", ["gzip", "gzip named .csv", "utf-16", "utf-16-be", "utf-32"])
+def test_gzip_and_utf16_files_are_read(tmp_path: Path, plant: Plant, form: str) -> None:
+    cols = table()
+    text = write(tmp_path / "plain.csv", cols).read_text()
+    path = tmp_path / ("log.csv.gz" if form == "gzip" else "log.csv")
+    if form.startswith("gzip"):
+        path.write_bytes(gzip.compress(text.encode()))
+    elif form == "utf-16-be":  # with its byte-order mark, as the encoder `utf-16` writes on a big-endian machine
+        path.write_bytes(codecs.BOM_UTF16_BE + text.encode("utf-16-be"))
+    else:
+        path.write_text(text, encoding=form)
+    data = read_measured(path, plant)
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])
+
+
+def test_a_cut_gzip_file_is_named(tmp_path: Path, plant: Plant) -> None:
+    packed = gzip.compress(write(tmp_path / "plain.csv", table()).read_bytes())
+    (tmp_path / "cut.csv.gz").write_bytes(packed[: len(packed) // 2])
+    with pytest.raises(DataError, match=r"cut\.csv\.gz: a gzip-compressed file that cannot be decompressed"):
+        read_measured(tmp_path / "cut.csv.gz", plant)
+
+
+def test_a_single_row_is_refused_before_any_warning(tmp_path: Path, plant: Plant) -> None:
+    path = write(tmp_path / "one.csv", table(1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "Mean of empty slice" would come first
+        with pytest.raises(DataError, match=r"one\.csv: too little data: 1 rows, at least 50 are needed"):
+            read_measured(path, plant)
+        with pytest.raises(DataError, match=r"one\.csv: too little data: 1 rows, at least 2 are needed"):
+            read_measured(path, plant, min_samples=1)
