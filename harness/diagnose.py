@@ -189,6 +189,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     )
     _check_below_nyquist(cfg, datasets)
     repairs = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
+    ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
     anomalies = find_anomalies(datasets, plant.hinge)  # at the full rate: thinning would blur a stuck or clipped torque
@@ -236,6 +237,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     payload["seed"] = int(cfg.seed)
     payload["split"] = split.describe()
     payload["repairs"] = repairs
+    payload["ignored_columns"] = ignored  # columns of each file the reader did not use
     if excluded:
         payload["excluded"] = excluded
     if reduced is not None:

@@ -132,6 +132,15 @@ def test_record_offsets_must_be_a_flag(csv_files: list[Path], tmp_path: Path) ->
     assert not any(tmp_path.iterdir())
 
 
+def test_a_text_column_the_diagnosis_does_not_use_is_listed_not_refused(csv_files: list[Path], tmp_path: Path) -> None:
+    lines = csv_files[0].read_text().splitlines()
+    noted = tmp_path / "noted.csv"
+    noted.write_text("\n".join([lines[0] + ",comment"] + [ln + ",ok 2026-12-01T10:00" for ln in lines[1:]]) + "\n")
+    result = cli.run(_config([noted, csv_files[1]], tmp_path / "out"))
+    ignored = result["ignored_columns"]
+    assert ignored[str(noted)] == [*ignored[str(csv_files[1])], "comment"]  # (ddq: the states are derived)
+
+
 @pytest.mark.parametrize("key", ["diagnose.band_hz", "diagnose.cutoff_hz"])
 def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     csv_files: list[Path], tmp_path: Path, key: str
