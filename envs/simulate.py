@@ -9,7 +9,8 @@ torque is the torque the actuators really applied (after saturation), plus the s
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Protocol
 
 import mujoco
@@ -146,8 +147,14 @@ def _mass_diagonal(plant: Plant, q: np.ndarray) -> np.ndarray:
 
 
 # largest (rate x physics step) of a servo's spring sqrt(kp / M) or damper (kv + d) / M that the simulation
-# accepts: Menagerie's servo arms are tuned to be stable at 2 ms, not accurate (0.6 rad/step on a gen3 wrist)
+# accepts: Menagerie's servo arms are tuned to be stable at 2 ms, not accurate (0.6 rad/step on a gen3 wrist).
+# A damper the integrator takes implicitly is not counted (`_servo_rates`): (kv + d) / M reaches 6e5 1/s on
+# the xarm7's 1.4e-4 kg m^2 wrist, 2350 physics steps per sample
 _MAX_RATE_STEP = 0.5
+
+# servo setpoints evaluated per call of the reference (a chunk of samples at a time): the whole grid is
+# samples x physics steps x actuators, and the reference's own temporaries are larger still
+_SETPOINTS_PER_CALL = 1 << 16
 
 
 # impedance of the dry-friction constraint: the friction stays below its bound F only under |v| < v*,
@@ -183,20 +190,71 @@ def _hard_friction(m: mujoco.MjModel) -> mujoco.MjModel:
 def _servo_resolved(plant: Plant, q0: np.ndarray) -> mujoco.MjModel:
     """The plant's model, its physics step divided (by a whole number) until stiff servos are resolved."""
     m = plant.mj_model
-    if not plant.actuation.actuators:
-        return m
-    inertia = _mass_diagonal(plant, q0)
-    rate = np.zeros(plant.nv)
-    for a in plant.actuation.actuators:
-        j = a.joint
-        stiffness, damping = -a.bias[1] * a.gear**2, -a.bias[2] * a.gear**2 + plant.damping[j]
-        rate[j] = max(np.sqrt(max(stiffness, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
-    split = int(np.ceil(float(rate.max()) * m.opt.timestep / _MAX_RATE_STEP))
+    split = _split(_servo_rates(plant, q0, m), m.opt.timestep)
     if split <= 1:
         return m
     fine = copy.deepcopy(m)
     fine.opt.timestep = m.opt.timestep / split
     return fine
+
+
+def _servo_rates(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bool = False) -> np.ndarray:
+    """(nu,) each actuator's fastest rate [1/s] that `m`'s integrator takes explicitly, at the pose q0 (nv,).
+
+    That is its spring sqrt(kp / M) (MuJoCo's implicit integrators take velocity derivatives only) and the
+    part of its damper (kv + d) / M that the integrator does not take implicitly (`_implicit_terms`). With
+    `clamped`, the rates while a force-limited actuator's force is at its range: MuJoCo then drops its
+    velocity derivative, and its kv is explicit under any integrator.
+    """
+    inertia = _mass_diagonal(plant, q0)
+    joint_implicit, actuator_implicit = _implicit_terms(m)
+    out = np.zeros(len(plant.actuation.actuators))
+    for i, a in enumerate(plant.actuation.actuators):
+        j = a.joint
+        kv_explicit = not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
+        damping = (-a.bias[2] * a.gear**2 if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
+        out[i] = max(np.sqrt(max(-a.bias[1] * a.gear**2, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
+    return out
+
+
+def _split(rates: np.ndarray, h: float) -> int:
+    """Physics steps per step h [s] that bring every rate (1/s) times the step within `_MAX_RATE_STEP`."""
+    return max(1, int(np.ceil(float(rates.max(initial=0.0)) * h / _MAX_RATE_STEP)))
+
+
+def _at_force_range(m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
+    """(nu,) whether each actuator's force (of d's last forward pass) is at its force range: clamped."""
+    force, (lo, hi) = d.actuator_force, m.actuator_forcerange.T
+    return m.actuator_forcelimited.astype(bool) & ((force <= lo) | (force >= hi))
+
+
+@dataclass(frozen=True)
+class _Clamp:
+    """The finer model for a sample interval in which a `watched` actuator (nu,) reaches its force range.
+
+    Under an implicit integrator a servo's damper is stable at any step, but not while its force is clamped
+    (`_servo_rates`): a 20 N m xarm7 wrist servo, clamped for one 0.2 ms step, gains 28 rad/s and stays in a
+    clamped cycle at 5.7 rad/s for the rest of the run. Each arm's servos clamp in the first sample (a
+    position servo pulls towards zero speed: -kv dq_ref[0] exceeds the wrists' range), rarely after.
+    """
+
+    model: mujoco.MjModel
+    watched: np.ndarray
+
+    @staticmethod
+    def of(plant: Plant, q0: np.ndarray, m: mujoco.MjModel) -> _Clamp | None:
+        """The clamp fallback of the resolved model `m`; None where `m`'s step resolves every clamped damper."""
+        rates = _servo_rates(plant, q0, m, clamped=True)
+        watched = rates * m.opt.timestep > _MAX_RATE_STEP
+        if not np.any(watched):
+            return None
+        h0 = plant.mj_model.opt.timestep
+        fine = copy.deepcopy(m)  # `m`'s own settings (hard friction) at the finer step
+        fine.opt.timestep = h0 / _split(rates, h0)
+        return _Clamp(fine, watched)
+
+    def touched(self, m: mujoco.MjModel, d: mujoco.MjData) -> bool:
+        return bool(np.any(_at_force_range(m, d)[self.watched]))
 
 
 def _implicit_damping(plant: Plant, m: mujoco.MjModel) -> np.ndarray | None:
@@ -206,18 +264,75 @@ def _implicit_damping(plant: Plant, m: mujoco.MjModel) -> np.ndarray | None:
     end of the step: the motion satisfies M a + d v_next = tau(v_next), not M a + d v = tau(v), which looks
     like an extra inertia h (d + kv) (0.9 kg m^2 for a servo of kv 450 at h = 2 ms, nine times a typical
     armature). Reporting the torque as qfrc_actuator + (b2 gear^2 - d)(v_next - v) with the step's acceleration
-    (v_next - v) / h gives data of the continuous-time robot. None where nothing is implicit.
+    (v_next - v) / h gives data of the continuous-time robot. None where nothing is implicit. An actuator
+    whose force is clamped has no velocity derivative in that step: `_clamped_damping` takes its term out.
     """
-    integrator = int(m.opt.integrator)
-    implicit_kinds = (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
-    eulerdamp = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    joint_implicit, actuator_implicit = _implicit_terms(m)
     out = np.zeros(plant.nv)
-    if integrator in implicit_kinds or (integrator == int(mujoco.mjtIntegrator.mjINT_EULER) and eulerdamp):
+    if joint_implicit:
         out -= plant.damping
-    if integrator in implicit_kinds:
+    if actuator_implicit:
         for a in plant.actuation.actuators:
             out[a.joint] += a.bias[2] * a.gear**2
     return out if np.any(out) else None
+
+
+def _clamped_damping(plant: Plant, m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
+    """(nv,) the terms b2 gear^2 of `_implicit_damping` that the step from d's state does not take implicitly:
+    those of the actuators whose force is at its range (MuJoCo drops a clamped actuator's derivative)."""
+    out = np.zeros(plant.nv)
+    if not _implicit_terms(m)[1]:
+        return out
+    for a, clamped in zip(plant.actuation.actuators, _at_force_range(m, d), strict=True):
+        if clamped:
+            out[a.joint] += a.bias[2] * a.gear**2
+    return out
+
+
+def _implicit_terms(m: mujoco.MjModel) -> tuple[bool, bool]:
+    """Whether the integrator takes (joint damping, actuator velocity gain) at the end of the step.
+
+    `implicit` and `implicitfast` take every velocity derivative of the smooth forces (never a position one);
+    Euler takes the joint damping only, unless `eulerdamp` is disabled; RK4 takes nothing.
+    """
+    integrator = int(m.opt.integrator)
+    implicit = integrator in (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+    eulerdamp = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    return implicit or (integrator == int(mujoco.mjtIntegrator.mjINT_EULER) and eulerdamp), implicit
+
+
+def _setpoints(
+    targets: Callable[[np.ndarray], np.ndarray] | None, t: np.ndarray, h: float, substeps: int
+) -> Iterator[np.ndarray | None]:
+    """For each sample time t (n,), the ctrl (substeps, nu) of each of its physics steps of h [s] from `targets`
+    (None where the held ctrl applies throughout), evaluated `_SETPOINTS_PER_CALL` setpoints at a time."""
+    if targets is None or substeps == 1:
+        yield from (None for _ in t)
+        return
+    rows = max(1, _SETPOINTS_PER_CALL // substeps)
+    for start in range(0, len(t), rows):
+        block = t[start : start + rows]
+        times = (block[:, None] + np.arange(substeps)[None, :] * h).ravel()
+        yield from targets(times).reshape(len(block), substeps, -1)
+
+
+def _interval(
+    m: mujoco.MjModel, d: mujoco.MjData, setpoints: np.ndarray | None, substeps: int, clamp: _Clamp | None
+) -> np.ndarray | None:
+    """Step d through one sample interval of `substeps` physics steps of `m`, the ctrl held except where
+    `setpoints` (substeps, nu) is not NaN (from the second step on). Returns the first step's velocity change
+    (nv,), or None as soon as an actuator that `clamp` watches reaches its force range (d is then mid-way)."""
+    v0, held = d.qvel.copy(), d.ctrl.copy()
+    first = None
+    for i in range(substeps):
+        if i and setpoints is not None:
+            d.ctrl[:] = np.where(np.isnan(setpoints[i]), held, setpoints[i])
+        mujoco.mj_step(m, d)
+        if clamp is not None and clamp.touched(m, d):
+            return None
+        if i == 0:
+            first = d.qvel - v0
+    return first
 
 
 def _run(
@@ -233,7 +348,8 @@ def _run(
     hard_friction: bool = False,
 ) -> Dataset:
     """Simulate sample by sample: ctrl from `control` at each sample (held), except where `targets` (times
-    (M,) -> ctrl (M, nu), NaN where the held ctrl applies) sets it at every physics step."""
+    (M,) -> ctrl (M, nu), NaN where the held ctrl applies) sets it at every physics step. A sample interval in
+    which a servo's force clamps is simulated again at the finer step of `_Clamp` (`meta["refined_samples"]`)."""
     m = _resolved_model(plant, q0, hard_friction=hard_friction)
     d = mujoco.MjData(m)
     dt_sample = t[1] - t[0]
@@ -244,29 +360,35 @@ def _run(
             f"{m.opt.timestep} s"
         )
     n, nv = len(t), m.nv
-    q, dq, ddq, applied, cmd, constraint = (np.empty((n, nv)) for _ in range(6))
+    q, dq, ddq, applied, clamped, cmd, constraint = (np.empty((n, nv)) for _ in range(7))
     implicit = _implicit_damping(plant, m)
-    fine = None
-    if targets is not None and substeps > 1:
-        fine = targets((t[:, None] + np.arange(substeps)[None, :] * m.opt.timestep).ravel()).reshape(n, substeps, -1)
+    clamp = _Clamp.of(plant, q0, m)
+    kind = mujoco.mjtState.mjSTATE_INTEGRATION
+    start = np.empty(mujoco.mj_stateSize(m, kind))
+    refined: list[int] = []
     d.qpos[:], d.qvel[:] = q0, dq0
-    for k in range(n):
+    for k, fine in enumerate(_setpoints(targets, t, m.opt.timestep, substeps)):
         state = d.qpos.copy(), d.qvel.copy()
         d.ctrl[:] = control(k, *state)
         mujoco.mj_forward(m, d)
         q[k], dq[k], ddq[k] = d.qpos, d.qvel, d.qacc
-        applied[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
+        clamped[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
+        applied[k] = clamped[k]
         constraint[k] = d.qfrc_constraint
-        mujoco.mj_step(m, d)
-        if implicit is not None:  # the step's own acceleration, and the torque that produced it
-            step = d.qvel - state[1]
-            ddq[k] = step / m.opt.timestep
-            applied[k] = applied[k] + implicit * step
-        held = d.ctrl.copy()
-        for i in range(1, substeps):
-            if fine is not None:
-                d.ctrl[:] = np.where(np.isnan(fine[k, i]), held, fine[k, i])
-            mujoco.mj_step(m, d)
+        damping = None if implicit is None else implicit - _clamped_damping(plant, m, d)
+        if clamp is not None:
+            mujoco.mj_getState(m, d, start, kind)
+        h, step = m.opt.timestep, _interval(m, d, fine, substeps, clamp)
+        if step is None:  # a watched servo clamped: this interval again, from its start, at the finer step
+            assert clamp is not None
+            mujoco.mj_setState(m, d, start, kind)
+            h, count = clamp.model.opt.timestep, int(round(dt_sample / clamp.model.opt.timestep))
+            step = _interval(clamp.model, d, next(_setpoints(targets, t[k : k + 1], h, count)), count, None)
+            refined.append(k)
+        assert step is not None
+        if damping is not None:  # the step's own acceleration, and the torque that produced it
+            ddq[k] = step / h
+            applied[k] = applied[k] + damping * step
         if not np.all(np.isfinite(d.qpos)):
             raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")
     if sensor.delay_s > 0:
@@ -274,7 +396,8 @@ def _run(
         reported = applied[np.clip(lag, 0, n - 1)]
     else:
         reported = applied
-    saturated = np.abs(cmd - applied) > 1e-9 * (1 + np.abs(cmd))
+    # saturation is the ctrl and force clamp alone: `applied` also holds the implicit-damping correction
+    saturated = np.abs(cmd - clamped) > 1e-9 * (1 + np.abs(cmd))
     return Dataset(
         time=t,
         q=sensor.measure_q(q, rng),
@@ -292,6 +415,7 @@ def _run(
             "dq_true": dq,
             "tau_applied": applied,
             "saturated_fraction": saturated[:, plant.actuated].mean(axis=0).tolist(),
+            "refined_samples": refined,
             # joint limits, contacts and frictionloss act through constraints: the largest such torque [N m]
             "constraint_torque_max": np.abs(constraint).max(axis=0).tolist(),
         },

@@ -1,0 +1,198 @@
+"""The simulator: the physics step it chooses for stiff servos, the clamped-servo fallback, the servo setpoints
+evaluated a chunk at a time, and the saturation it reports (the ctrl and force clamp, never the integrator's
+implicit-damping correction)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+import envs.simulate as simulate
+from dynamics.plant import Plant, load_plant, plant_from_xml
+from envs.sensors import SensorModel
+from envs.simulate import simulate_open_loop, simulate_tracking
+
+ROBOTS = Path(__file__).resolve().parents[2] / "shared" / "robots"
+needs_robots = pytest.mark.skipif(not ROBOTS.is_dir(), reason="../shared/robots/ is not beside the project")
+
+# a 0.21 kg m^2 upper arm swinging in gravity and a 1e-4 kg m^2 wrist rolling about the link: the wrist's servo
+# (kp 800, kv 80, as the xarm7's) has kv / M = 8e5 1/s and a spring sqrt(kp / M) of 2828 1/s
+_ARM = """<mujoco model="{name}"><option integrator="{integrator}" timestep="0.002">{flag}</option>
+  <worldbody><body name="upper"><joint name="j0" axis="0 1 0" damping="{d0}"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03" mass="1"/>
+    <body name="wrist" pos="0 0 -0.3"><joint name="j1" axis="0 0 1" damping="{d1}"/>
+      <geom type="cylinder" size="0.01 0.02" mass="2"/></body></body></worldbody>
+  <actuator>{actuators}</actuator></mujoco>"""
+_SERVOS = (
+    '<position joint="j0" kp="200" kv="20" forcerange="-{f0} {f0}"/>'
+    '<position joint="j1" kp="800" kv="80" forcerange="-20 20"/>'
+)
+_MOTORS = '<motor joint="j0" ctrlrange="-5 5"/><motor joint="j1" ctrlrange="-1 1"/>'
+
+
+def _arm(
+    tmp_path: Path,
+    *,
+    integrator: str = "implicitfast",
+    actuators: str = _SERVOS.format(f0=50),
+    d0: float = 0.0,
+    d1: float = 0.0,
+    eulerdamp: bool = True,
+) -> Plant:
+    flag = "" if eulerdamp else '<flag eulerdamp="disable"/>'
+    xml = _ARM.format(name="arm", integrator=integrator, flag=flag, d0=d0, d1=d1, actuators=actuators)
+    return plant_from_xml(xml, "arm", tmp_path)
+
+
+class _Waves:
+    """q = q0 + a (1 - cos w t) (zero speed at t = 0) or q0 + a sin w t, per joint; records its calls' sizes."""
+
+    def __init__(self, q0: np.ndarray, amplitude: np.ndarray, *, freq_hz: float = 0.5, sine: bool = False) -> None:
+        self.q0, self.a, self.w, self.sine = q0, amplitude, 2 * np.pi * freq_hz, sine
+        self.calls: list[int] = []
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self.calls.append(len(t))
+        wt = self.w * t[:, None]
+        if self.sine:
+            return self.q0 + self.a * np.sin(wt), self.a * self.w * np.cos(wt), -self.a * self.w**2 * np.sin(wt)
+        return self.q0 + self.a * (1 - np.cos(wt)), self.a * self.w * np.sin(wt), self.a * self.w**2 * np.cos(wt)
+
+
+def _track(plant: Plant, reference: _Waves, duration_s: float = 0.4):  # type: ignore[no-untyped-def]
+    return simulate_tracking(
+        plant, reference, duration_s=duration_s, sensor=SensorModel(sample_rate_hz=500), rng=np.random.default_rng(0)
+    )
+
+
+def _substeps(plant: Plant) -> int:
+    m = simulate._servo_resolved(plant, np.zeros(plant.nv))
+    return round(plant.mj_model.opt.timestep / m.opt.timestep)
+
+
+def _wrist_inertia(plant: Plant) -> float:
+    m, d = plant.mj_model, mujoco.MjData(plant.mj_model)
+    mujoco.mj_forward(m, d)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    return float(full[1, 1])
+
+
+@pytest.mark.parametrize(
+    ("integrator", "eulerdamp", "explicit_damping"),
+    [
+        ("implicitfast", True, 0.0),  # kv and d implicit: only the spring sqrt(kp / M) is resolved
+        ("implicit", True, 0.0),
+        ("Euler", True, 80.0),  # Euler takes the joint damping implicitly, not the actuator's kv
+        ("Euler", False, 85.0),
+        ("RK4", True, 85.0),
+    ],
+)
+def test_the_physics_step_resolves_only_what_the_integrator_takes_explicitly(
+    tmp_path: Path, integrator: str, eulerdamp: bool, explicit_damping: float
+) -> None:
+    plant = _arm(tmp_path, integrator=integrator, d1=5.0, eulerdamp=eulerdamp)
+    inertia, h = _wrist_inertia(plant), plant.mj_model.opt.timestep
+    rate = max(math.sqrt(800.0 / inertia), explicit_damping / inertia)
+    assert _substeps(plant) == math.ceil(rate * h / simulate._MAX_RATE_STEP)
+    if explicit_damping == 0:
+        assert _substeps(plant) == 12  # not the 3400 that (kv + d) / M would ask for
+
+
+@needs_robots
+@pytest.mark.parametrize(("arm", "substeps"), [("xarm7_nohand", 10), ("iiwa14", 6), ("panda_nohand", 1), ("ur5e", 1)])
+def test_menagerie_servo_arms_get_a_step_for_their_springs_not_their_implicit_dampers(arm: str, substeps: int) -> None:
+    """The xarm7 took 2347 physics steps per 2 ms sample (4.7 M mj_step calls and 3.8 GB for a short run)."""
+    assert _substeps(load_plant(ROBOTS / f"{arm}.xml")) == substeps
+
+
+def test_a_clamped_servo_is_simulated_at_the_step_that_resolves_its_damper(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A position servo pulls towards zero speed: started at 0.94 rad/s, the wrist's -kv dq exceeds its 20 N m
+    range, and while clamped its damper is explicit (MuJoCo drops a clamped actuator's velocity derivative).
+    At the spring's step (1/6 ms, kv h / M = 133) it ran away, clamped for good at 6.25 rad/s (the xarm7's
+    wrist in a harness run: 5.7 rad/s and a torque RMS of 167 N m on held-out data)."""
+    plant = _arm(tmp_path, d1=2.0)
+    reference = _Waves(np.zeros(2), np.array([0.0, 0.3]), sine=True)
+    data = _track(plant, reference, duration_s=0.1)
+    assert np.abs(data.meta["dq_true"][:, 1]).max() < 1.0  # the reference's largest speed is 0.94 rad/s
+    assert data.meta["refined_samples"][:1] == [0] and len(data.meta["refined_samples"]) <= 3
+    assert np.all(np.abs(data.meta["tau_applied"]) <= plant.tau_limit * (1 + 1e-9))  # no kv term beyond it
+    assert data.meta["saturated_fraction"][1] <= 0.05
+
+    resolved = simulate._servo_resolved
+
+    def everywhere(plant: Plant, q0: np.ndarray) -> mujoco.MjModel:  # the finer step for the whole run
+        fine = simulate._Clamp.of(plant, q0, resolved(plant, q0))
+        assert fine is not None
+        return fine.model
+
+    monkeypatch.setattr(simulate, "_servo_resolved", everywhere)
+    truth = _track(plant, reference, duration_s=0.1)
+    assert truth.meta["refined_samples"] == []
+    np.testing.assert_allclose(data.meta["q_true"], truth.meta["q_true"], atol=2e-4)
+
+
+def test_servo_setpoints_are_evaluated_a_chunk_at_a_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    plant = _arm(tmp_path)
+    whole = _Waves(np.zeros(2), np.array([0.2, 0.3]))
+    expected = _track(plant, whole)
+    assert max(whole.calls[1:]) == len(expected.time) * 12  # one call for every physics step of the run
+    monkeypatch.setattr(simulate, "_SETPOINTS_PER_CALL", 30)
+    chunked = _Waves(np.zeros(2), np.array([0.2, 0.3]))
+    data = _track(plant, chunked)
+    assert chunked.calls[0] == len(data.time) and max(chunked.calls[1:]) <= 30  # the first: the sample times
+    np.testing.assert_array_equal(data.meta["q_true"], expected.meta["q_true"])
+    np.testing.assert_array_equal(data.meta["tau_applied"], expected.meta["tau_applied"])
+
+
+def test_an_implicit_servo_arm_inside_its_ranges_is_never_saturated(tmp_path: Path) -> None:
+    """Implicitfast with kv and joint damping: the reported torque differs from the clamped command by the
+    implicit-damping correction at every sample, which counted as saturation (a fraction of 1.0)."""
+    plant = _arm(tmp_path, d0=1.0, d1=0.5)
+    data = _track(plant, _Waves(np.zeros(2), np.array([0.2, 0.3])))
+    assert np.abs(data.meta["tau_applied"] - data.tau_cmd).max() > 1e-6  # the correction is there
+    assert data.meta["saturated_fraction"] == [0.0, 0.0]
+
+
+def test_a_servo_beyond_its_force_range_is_saturated_part_of_the_time(tmp_path: Path) -> None:
+    plant = _arm(tmp_path, actuators=_SERVOS.format(f0=2))  # gravity needs up to 2.9 N m on j0
+    data = _track(plant, _Waves(np.zeros(2), np.array([0.2, 0.3])), duration_s=1.0)
+    fraction = data.meta["saturated_fraction"]
+    assert 0.05 < fraction[0] < 0.95 and fraction[1] == 0.0
+    clamped = np.abs(data.tau_cmd[:, 0]) > 2.0  # a clamped servo's kv is no implicit term there: nothing added
+    np.testing.assert_allclose(np.abs(data.meta["tau_applied"][clamped, 0]), 2.0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("over", [False, True])
+def test_joint_damping_under_euler_is_no_saturation(tmp_path: Path, over: bool) -> None:
+    """Euler takes joint damping implicitly: with damping on j0 its fraction read 1.0 without any clamp."""
+    plant = _arm(tmp_path, integrator="Euler", actuators=_MOTORS, d0=2.0)
+
+    def torque(t: np.ndarray) -> np.ndarray:
+        return np.column_stack([(8.0 if over else 2.0) * np.sin(2 * np.pi * t), 0.5 * np.sin(3 * t)])
+
+    data = simulate_open_loop(
+        plant, torque, duration_s=1.0, sensor=SensorModel(sample_rate_hz=500), rng=np.random.default_rng(0)
+    )
+    fraction = data.meta["saturated_fraction"]
+    assert fraction[1] == 0.0
+    if over:  # |8 sin| > 5 for 57 % of the time
+        assert fraction[0] == pytest.approx(1 - 2 * np.arcsin(5 / 8) / np.pi, abs=0.01)
+    else:
+        assert fraction[0] == 0.0
+
+
+@needs_robots
+def test_a_menagerie_arm_tracking_inside_its_ranges_is_never_saturated() -> None:
+    """The Panda (implicitfast, kv 200-450, joint damping 1) reported [1.0] * 7 at a torque ratio of 0.3."""
+    plant = load_plant(ROBOTS / "panda_nohand.xml")
+    home = np.array([0.0, 0.0, 0.0, -1.57, 0.0, 1.57, -0.785])
+    data = _track(plant, _Waves(home, np.full(7, 0.1)), duration_s=0.5)
+    assert np.abs(data.tau_cmd).max(axis=0).max() > 1.0  # it does hold the arm up
+    assert data.meta["saturated_fraction"] == [0.0] * 7
