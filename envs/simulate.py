@@ -208,13 +208,19 @@ def _servo_rates(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bo
     """
     inertia = _mass_diagonal(plant, q0)
     joint_implicit, actuator_implicit = _implicit_terms(m)
+    gains = _velocity_gains(plant)
     out = np.zeros(len(plant.actuation.actuators))
     for i, a in enumerate(plant.actuation.actuators):
         j = a.joint
         kv_explicit = not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
-        damping = (-a.bias[2] * a.gear**2 if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
+        damping = (-gains[i] if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
         out[i] = max(np.sqrt(max(-a.bias[1] * a.gear**2, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
     return out
+
+
+def _velocity_gains(plant: Plant) -> np.ndarray:
+    """(nu,) each actuator's joint-torque velocity gain b2 gear^2 [N m s/rad] (-kv for a servo; <= 0)."""
+    return np.array([a.bias[2] * a.gear**2 for a in plant.actuation.actuators], dtype=float)
 
 
 def _split(rates: np.ndarray, h: float) -> int:
@@ -265,28 +271,15 @@ def _implicit_damping(plant: Plant, m: mujoco.MjModel) -> np.ndarray | None:
     like an extra inertia h (d + kv) (0.9 kg m^2 for a servo of kv 450 at h = 2 ms, nine times a typical
     armature). Reporting the torque as qfrc_actuator + (b2 gear^2 - d)(v_next - v) with the step's acceleration
     (v_next - v) / h gives data of the continuous-time robot. None where nothing is implicit. An actuator
-    whose force is clamped has no velocity derivative in that step: `_clamped_damping` takes its term out.
+    whose force is clamped has no velocity derivative in that step: `_run` takes its term out.
     """
     joint_implicit, actuator_implicit = _implicit_terms(m)
     out = np.zeros(plant.nv)
     if joint_implicit:
         out -= plant.damping
     if actuator_implicit:
-        for a in plant.actuation.actuators:
-            out[a.joint] += a.bias[2] * a.gear**2
+        np.add.at(out, plant.actuation.joints, _velocity_gains(plant))
     return out if np.any(out) else None
-
-
-def _clamped_damping(plant: Plant, m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
-    """(nv,) the terms b2 gear^2 of `_implicit_damping` that the step from d's state does not take implicitly:
-    those of the actuators whose force is at its range (MuJoCo drops a clamped actuator's derivative)."""
-    out = np.zeros(plant.nv)
-    if not _implicit_terms(m)[1]:
-        return out
-    for a, clamped in zip(plant.actuation.actuators, _at_force_range(m, d), strict=True):
-        if clamped:
-            out[a.joint] += a.bias[2] * a.gear**2
-    return out
 
 
 def _implicit_terms(m: mujoco.MjModel) -> tuple[bool, bool]:
@@ -362,6 +355,9 @@ def _run(
     n, nv = len(t), m.nv
     q, dq, ddq, applied, clamped, cmd, constraint = (np.empty((n, nv)) for _ in range(7))
     implicit = _implicit_damping(plant, m)
+    # the velocity gains MuJoCo takes implicitly, each dropped in a step where its actuator's force is clamped
+    dropped = _velocity_gains(plant) if implicit is not None and _implicit_terms(m)[1] else None
+    joints = plant.actuation.joints
     clamp = _Clamp.of(plant, q0, m)
     kind = mujoco.mjtState.mjSTATE_INTEGRATION
     start = np.empty(mujoco.mj_stateSize(m, kind))
@@ -375,7 +371,9 @@ def _run(
         clamped[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
         applied[k] = clamped[k]
         constraint[k] = d.qfrc_constraint
-        damping = None if implicit is None else implicit - _clamped_damping(plant, m, d)
+        damping = implicit
+        if implicit is not None and dropped is not None:
+            damping = implicit - np.bincount(joints, dropped * _at_force_range(m, d), minlength=nv)
         if clamp is not None:
             mujoco.mj_getState(m, d, start, kind)
         h, step = m.opt.timestep, _interval(m, d, fine, substeps, clamp)

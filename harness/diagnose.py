@@ -123,7 +123,7 @@ def data_paths(cfg: DictConfig) -> list[Path]:
 
 def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file (known once read)."""
-    slowest = min(datasets, key=lambda d: 1.0 / d.dt)
+    slowest = max(datasets, key=lambda d: d.dt)
     nyquist = 0.5 / slowest.dt
     key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
     for name, value in (("diagnose.cutoff_hz", cfg.diagnose.get("cutoff_hz")), (key, _band_hz(cfg))):

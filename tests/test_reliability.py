@@ -31,6 +31,7 @@ from harness import report
 from harness.record import save_recording
 from harness.run import run
 from harness.rundir import LOCK_NAME, RunFolderError, claim, terminate_as_exit
+from harness.setup import with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, check_group_overrides, validate_run_config
 from tests.conftest import compose_config
 
@@ -344,10 +345,13 @@ def test_harmonics_are_bounded_by_the_sampling() -> None:
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["system.base_freq_hz=300"], r"system\.base_freq_hz must be <= 25 at system\.sensor\.sample_rate_hz=500"),
-        (["identify.cutoff_hz=250"], r"identify\.cutoff_hz must be < 250, got 250"),
         (
-            ["system=auto", f"system.mjcf={REPO / 'mjcf' / 'two_link.xml'}", "system.limits.clearance_m=-1"],
+            ["system=pendulum", "system.base_freq_hz=300"],
+            r"system\.base_freq_hz must be <= 25 at system\.sensor\.sample_rate_hz=500",
+        ),
+        (["system=pendulum", "identify.cutoff_hz=250"], r"identify\.cutoff_hz must be < 250, got 250"),
+        (
+            [f"system.mjcf={REPO / 'mjcf' / 'two_link.xml'}", "system.limits.clearance_m=-1"],
             r"system\.limits\.clearance_m must be >= 0, got -1",
         ),
     ],
@@ -355,15 +359,10 @@ def test_harmonics_are_bounded_by_the_sampling() -> None:
 def test_a_value_out_of_its_range_is_named_by_its_key(overrides: list[str], message: str) -> None:
     """The frequency that breaks the sampling is named (not the harmonics it implies), a cut-off at the Nyquist
     frequency is refused here as the filter refuses it later, and a negative clearance is no clearance."""
-    system = "two_link" if "system=auto" in overrides else "pendulum"
-    cfg = compose_config(overrides if "system=auto" in overrides else ["system=pendulum", *overrides])
-    plant = load_plant(system)
-    if "system=auto" in overrides:
-        from harness.setup import with_model_defaults
-
-        cfg = with_model_defaults(cfg, plant)
+    cfg = compose_config(with_auto_system(overrides))
+    plant = load_plant(cfg.system.mjcf)
     with pytest.raises(ConfigError, match=message):
-        validate_run_config(cfg, plant)
+        validate_run_config(with_model_defaults(cfg, plant), plant)
 
 
 # 6. sysid-report survives a corrupt job file -------------------------------------------------------------------
