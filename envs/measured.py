@@ -144,7 +144,7 @@ def read_measured(
     _check_length(rows_read, max(min_samples, 2), src, "rows")  # first: the checks below need a time step
     _check_finite(values, labels, src)
     t = values["time"]
-    _check_time(t, labels["time"], src)
+    _check_time(t, sources["time"], labels["time"], src)
     names = plant.joint_names
     del values
     _check_angle_units(plant, t, arrays, labels, src)
@@ -618,9 +618,9 @@ def _check_finite(values: dict[str, np.ndarray], labels: dict[str, str], src: st
             raise DataError(f"{src}: {labels[name]}, row {k} (line {k + 2}): {x[k]} is not a finite number{more}")
 
 
-def _check_time(t: np.ndarray, label: str, src: str) -> None:
+def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
     steps = np.diff(t)
-    _check_time_unit(float(np.median(steps)), label, src)
+    _check_time_unit(float(np.median(steps)), column, label, src)
     back = np.flatnonzero(steps < 0)
     same = np.flatnonzero(steps == 0)
     if back.size and (not same.size or back[0] < same[0]):
@@ -637,15 +637,18 @@ def _check_time(t: np.ndarray, label: str, src: str) -> None:
         )
 
 
-def _check_time_unit(step: float, label: str, src: str) -> None:
-    """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is."""
+def _check_time_unit(step: float, column: _Column, label: str, src: str) -> None:
+    """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is. The hint
+    gives the mapping as a command-line override (`++` adds the key or replaces it, whether the data config maps
+    columns or not)."""
     if not step > 0 or 1.0 / step >= _MIN_SAMPLE_RATE_HZ:
         return
     guesses = [(unit, f) for unit, f in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))]
     likely = [(unit, f) for unit, f in guesses if _MIN_SAMPLE_RATE_HZ <= 1.0 / (step * f) <= _MAX_SAMPLE_RATE_HZ]
     hint = (
         f": time looks like {likely[0][0]} ({1.0 / (step * likely[0][1]):.4g} Hz then); the harness expects "
-        f"seconds: map it with {{column: ..., scale: {likely[0][1]:g}}} in data.columns.time"
+        f"seconds: map it with {{column: {column.name}, scale: {column.scale * likely[0][1]:g}}} as data.columns.time "
+        f"(on the command line: '++data.columns.time={{column:{column.name},scale:{column.scale * likely[0][1]:g}}}')"
         if likely
         else "; the harness expects time in seconds"
     )

@@ -75,6 +75,14 @@ def summary_table(results: dict[str, Any]) -> str:
         f"excitation {ex['name']}: cond(X'X) = {ex['cond_XtX']:.4g} (column-normalised {ex['cond_W_colnorm']:.4g}), "
         f"{ex['harmonics']} harmonics, period {ex['period_s']:g} s, limits {'hold' if ex['limits_ok'] else 'BROKEN'}"
     )
+    poor = ex.get("poorly_excited", {})
+    if poor.get("directions"):
+        lines.append(
+            f"WARNING: {poor['directions']} direction(s) of the base parameters are poorly excited (column-normalised "
+            f"cond > {poor['cond_threshold']:g}): {', '.join(poor['weakest'])} (weakest {poor['weakest_direction']}); "
+            "their estimates rest on the prior, if any, and their stds are large: use more periods or an optimised "
+            "excitation"
+        )
     for joint, rms in val["torque_rms"].items():
         lines.append(f"validation {joint}: torque RMS {rms:.4g} N m (sensor noise std {val['noise_std'][joint]:.4g})")
     lines.append("timing: " + ", ".join(f"{k} {v:.2f} s" for k, v in results["timing_s"].items()))

@@ -9,7 +9,7 @@ import numpy as np
 
 from dynamics.errors import DataError
 
-__all__ = ["ExcitationCheck", "check_excitation"]
+__all__ = ["ExcitationCheck", "check_excitation", "excitation_report"]
 
 
 @dataclass(frozen=True)
@@ -23,6 +23,9 @@ class ExcitationCheck:
         cond: 2-norm condition number of the column-normalised regressor [-] (inf when rank deficient).
         weakest: names of the parameters in the poorly excited directions (those above `max_cond`, else the
             least excited one), largest share first.
+        poorly_excited: number of directions of the column-normalised regressor whose singular value is below
+            the largest one / `max_cond`.
+        weakest_direction: the least excited direction as text (`+0.71 [p1] -0.70 [p2]`, entries of share >= 1 %).
     """
 
     n_equations: int
@@ -30,6 +33,8 @@ class ExcitationCheck:
     rank: int
     cond: float
     weakest: tuple[str, ...]
+    poorly_excited: int = 0
+    weakest_direction: str = ""
 
 
 def check_excitation(
@@ -72,6 +77,31 @@ def check_excitation(
     dead = [names[int(c)] for c in np.flatnonzero(norms <= 1e-12 * max(norms.max(), 1e-300))]
     if dead:
         raise DataError(f"{source}: the data do not excite {', '.join(dead)} at all (their regressor columns are 0)")
+    check = excitation_report(W, names=names, max_cond=max_cond)
+    if check.cond > max_cond:
+        raise DataError(
+            f"{source}: too little excitation for the parameters asked for: {check.poorly_excited} direction(s) of "
+            f"the column-normalised regressor are poorly excited (condition number {check.cond:.3g} > "
+            f"{max_cond:.3g}); weakest: {', '.join(check.weakest)} (weakest direction {check.weakest_direction}). "
+            "Use data that move these, or drop them from the model"
+        )
+    return check
+
+
+def excitation_report(regressor: np.ndarray, *, names: Sequence[str], max_cond: float = 1e3) -> ExcitationCheck:
+    """How well a regressor's columns are excited, without refusing anything (`check_excitation` refuses).
+
+    Args:
+        regressor: (N, nv, p) or (M, p) regressor.
+        names: (p,) parameter names.
+        max_cond: a direction whose singular value of the column-normalised regressor is below the largest one /
+            max_cond counts as poorly excited.
+    """
+    W = np.asarray(regressor, dtype=float)
+    W = W.reshape(-1, W.shape[-1])
+    m, p = W.shape
+    norms = np.linalg.norm(W, axis=0)
+    norms = np.where(norms > 1e-12 * max(float(norms.max(initial=0.0)), 1e-300), norms, np.inf)  # a 0 column: 0
     s, vt = np.linalg.svd(W / norms, full_matrices=False)[1:]
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
     rank = int(np.sum(s > s[0] * max(m, p) * np.finfo(float).eps))
@@ -79,14 +109,14 @@ def check_excitation(
     share = np.sum(vt[weak] ** 2, axis=0) if weak.any() else vt[-1] ** 2  # each parameter's part of the weak space
     order = np.argsort(share)[::-1]
     weakest = tuple(names[c] for c in order if share[c] >= 0.1 or c == order[0])
-    check = ExcitationCheck(n_equations=m, n_parameters=p, rank=rank, cond=cond, weakest=weakest)
-    if cond > max_cond:
-        last = np.argsort(vt[-1] ** 2)[::-1][:4]
-        combo = " ".join(f"{vt[-1, c]:+.2f} [{names[c]}]" for c in last if vt[-1, c] ** 2 >= 0.01)
-        raise DataError(
-            f"{source}: too little excitation for the parameters asked for: {int(weak.sum())} direction(s) of the "
-            f"column-normalised regressor are poorly excited (condition number {cond:.3g} > {max_cond:.3g}); "
-            f"weakest: {', '.join(weakest)} (weakest direction {combo}). Use data that move these, or drop them "
-            "from the model"
-        )
-    return check
+    last = np.argsort(vt[-1] ** 2)[::-1][:4]
+    combo = " ".join(f"{vt[-1, c]:+.2f} [{names[c]}]" for c in last if vt[-1, c] ** 2 >= 0.01)
+    return ExcitationCheck(
+        n_equations=m,
+        n_parameters=p,
+        rank=rank,
+        cond=cond,
+        weakest=weakest,
+        poorly_excited=int(weak.sum()),
+        weakest_direction=combo,
+    )

@@ -74,6 +74,21 @@ def test_shared_arms_pass_sysid_run_with_nothing_else(model: Path, tmp_path: Pat
     results = _run(model, tmp_path)
     _check(results)
     assert results["system"] == model.stem
+    assert results["excitation"]["poorly_excited"]["directions"] == 0  # the optimised design moves every one
+
+
+@pytest.mark.skipif(not (ROBOTS / "so_arm100.xml").is_file(), reason="../shared/robots/ is not beside the project")
+def test_a_design_that_leaves_base_parameters_unexcited_says_so(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    # one period of the unoptimised default design: cond(X'X) ~ 1e17 on the SO-ARM100, and estimates off by
+    # orders of magnitude whose stds are as large; the run reports the directions instead of printing them quietly
+    results = _run(
+        ROBOTS / "so_arm100.xml",
+        tmp_path,
+        ["record=none", "excitation=default", "system.periods=1", "validation.periods=1"],
+    )
+    poor = results["excitation"]["poorly_excited"]
+    assert poor["directions"] >= 1 and poor["weakest"] and results["excitation"]["cond_W_colnorm"] > 1e3
+    assert "WARNING: " + str(poor["directions"]) + " direction(s)" in capsys.readouterr().out
 
 
 @pytest.mark.slow

@@ -10,6 +10,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import stat
@@ -495,6 +496,28 @@ def test_time_in_milliseconds_is_named(tmp_path: Path) -> None:
     np.savetxt(tmp_path / "ms.csv", table, delimiter=",", header="time,q_swing,tau_swing", comments="")
     with pytest.raises(DataError, match=r"ms\.csv: column 'time' .* time looks like milliseconds \(500 Hz then\)"):
         read_measured(tmp_path / "ms.csv", load_plant("pendulum"))
+
+
+@pytest.mark.parametrize("data", ["csv", "dfki_double_pendulum"])  # columns null, and a config that maps time
+def test_the_time_unit_hint_is_an_override_that_works(tmp_path: Path, data: str) -> None:
+    from omegaconf import OmegaConf
+
+    t = np.arange(500) * 2.0  # 2 ms steps written in ms, under the column name `t`
+    table = np.column_stack([t, np.sin(t / 1000), np.cos(t / 1000), np.zeros(500), np.zeros(500)])
+    path = tmp_path / "ms.csv"
+    np.savetxt(path, table, delimiter=",", header="t,q_shoulder,q_elbow,tau_shoulder,tau_elbow", comments="")
+    plant = load_plant("two_link")
+    columns = {"time": "t", "q_shoulder": "q_shoulder", "q_elbow": "q_elbow"}
+    columns |= {"tau_shoulder": "tau_shoulder", "tau_elbow": "tau_elbow"}
+    with pytest.raises(DataError, match=r"command line: '([^']+)'") as err:
+        read_measured(path, plant, columns=columns)
+    override = re.search(r"command line: '([^']+)'", str(err.value)).group(1)  # type: ignore[union-attr]
+    assert override == "++data.columns.time={column:t,scale:0.001}"
+    cfg = compose_config(["system=two_link", f"data={data}", override], config_name="diagnose")
+    mapped = OmegaConf.to_container(cfg.data.columns)
+    assert mapped["time"] == {"column": "t", "scale": 0.001}  # type: ignore[index]
+    data_read = read_measured(path, plant, columns=columns | {"time": mapped["time"]})  # type: ignore[index]
+    assert np.isclose(np.median(np.diff(data_read.time)), 0.002)
 
 
 def test_wrong_joint_count_in_a_system_config_is_named() -> None:
