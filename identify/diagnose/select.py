@@ -9,11 +9,19 @@ contiguous time blocks of a single record) lowers the held-out weighted torque M
 already explain most of its column, and when it lowers the held-out error in most folds (a gain on
 average that one fold carries is not a gain that generalises). Where three or more records are held out in
 turn and the candidate lowers the held-out error of every one of them by `min_gain_records`, that is the
-evidence the BIC margin stands for: the BIC need only drop. Among the admissible ones the lowest BIC
+evidence the BIC margin stands for, measured on recordings the fit never saw: the BIC need only drop, and the
+significance asked of its value is `min_z_records` instead of `min_z`. Among the admissible ones the lowest BIC
 wins (the parsimonious explanation: one armature column beats a whole rigid-body refit that fits the same
 data), except between the shapes of one joint's frictionloss (ideal Coulomb and ramps of several widths, one
 coefficient each): the one with the lowest held-out error is taken, and a ramp only where it beats the ideal
-shape by `native_preference` (its width is a choice from a grid). Columns that the chosen ones already span are dropped.
+shape by `native_preference` (its width is a choice from a grid). Once a joint's frictionloss is named, its
+viscous friction is tried first, alone, in the next step (the friction law Fc sign(dq) + Fv dq of the
+literature; scored after other effects it would compete with, e.g. a rigid-body refit, its share is gone by the
+time it is tried). The pair must also beat, on the held-out records, the best other shape of that frictionloss
+alone (a ramp is one coefficient where the pair is two: MuJoCo's own soft frictionloss, a ramp of a few
+hundredths of a rad/s with sticking, fitted as sign(dq) plus dq, gives the dq column a share it does not have);
+where it lowers the held-out error of each of three or more records, the BIC is not asked of it. Columns that
+the chosen ones already span are dropped.
 
 Where records are held out in turn, the rigid-body refit's columns that a constant torque on the joints
 partly stands in for on these data (less than `offset_independence` of their norm outside the span of the
@@ -57,10 +65,14 @@ class SelectionOptions:
             the fit never saw is stronger evidence than one on another stretch of the same recording, so
             a smaller one counts.
         bic_margin: smallest BIC drop that counts (any drop, for a candidate that lowers the held-out error of
-            each of three or more held-out records by `min_gain_records`).
+            each of three or more held-out records by `min_gain_records`; none for the viscous part of a
+            frictionloss that does so, see the module docstring).
         folds: contiguous blocks of the training rows for cross-validation.
         max_findings: at most this many effects are chosen.
         min_z: smallest |value| / std of a chosen effect's headline value.
+        min_z_records: the same for an effect that lowers the held-out error of each of three or more records
+            held out in turn by `min_gain_records`: that gain on recordings the fit never saw is evidence the
+            stricter z would only duplicate (as it relaxes `bic_margin`).
         min_delay_samples: smallest |time delay| named, in sample intervals: below it a delay is within the
             log's timing conventions (zero-order hold, time stamps, the simulator's half-step) [1].
         offset_independence: a rigid-body column with less than this share of its norm outside the span of
@@ -85,6 +97,7 @@ class SelectionOptions:
     folds: int = 5
     max_findings: int = 6
     min_z: float = 3.0
+    min_z_records: float = 2.5
     min_independence: float = 0.1
     confound_independence: float = 0.3
     native_preference: float = 0.1
@@ -339,10 +352,16 @@ def select_effects(
         rss, held, e = float(b @ b), np.array([_mean_square(b[folds == f]) for f in range(n_folds)]), b
     n_eff = n_obs / correlation_time(e.reshape(n, nv), row_record)
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
-    while len(chosen) < options.max_findings:
-        best: tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]] | None = None
-        admissible: list[tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]] = []
-        for cand in pool:
+    Scored = tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]
+
+    def admissible_among(cands: list[Candidate], shape_mse: float | None = None) -> tuple[Scored | None, list[Scored]]:
+        """(the admissible candidate of lowest BIC or None, every admissible one) among `cands`, given the
+        columns chosen so far (X, basis, held, bic of the enclosing loop). `shape_mse`: for the viscous part of a
+        frictionloss just named, the held-out MSE of the best other shape of that frictionloss (instead of the one
+        named): the pair must beat it too, or a wider ramp is what the viscous column stands for."""
+        best: Scored | None = None
+        admissible: list[Scored] = []
+        for cand in cands:
             if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
                 continue
             cols = built[cand.key]
@@ -369,13 +388,23 @@ def select_effects(
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
             judged = gains[np.isfinite(gains)]
             unanimous = kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
-            if cv_c > (1 - min_gain) * cv or bic_c - bic > (0.0 if unanimous else -options.bic_margin):
+            bic_asked = -options.bic_margin if not unanimous else (np.inf if shape_mse is not None else 0.0)
+            if cv_c > (1 - min_gain) * min(cv, np.inf if shape_mse is None else shape_mse) or bic_c - bic > bic_asked:
                 continue
             if np.count_nonzero(judged > 0) * 2 <= len(judged):
                 continue  # it must lower the held-out error in most folds, not on average only
             admissible.append((bic_c, cand, kept, rss_c, held_c, held_nominal))
             if best is None or bic_c < best[0]:
                 best = (bic_c, cand, kept, rss_c, held_c, held_nominal)
+        return best, admissible
+
+    follow: list[Candidate] = []  # tried first, alone: the viscous part of a joint whose frictionloss was named
+    other_shapes = np.inf  # the held-out MSE of the best other shape of that frictionloss
+    while len(chosen) < options.max_findings:
+        best, admissible = admissible_among(follow, other_shapes) if follow else admissible_among(pool)
+        if best is None and follow:
+            best, admissible = admissible_among(pool)
+        follow = []
         if best is None:
             break
         if not best[1].native:  # a shape MuJoCo cannot hold must beat a native alternative clearly
@@ -395,6 +424,7 @@ def select_effects(
                 best[4], folds, n_folds
             ):
                 best = ideal[0]
+            other_shapes = min([_fold_mse(a[4], folds, n_folds) for a in shapes if a is not best], default=np.inf)
         bic_c, cand, kept, rss_c, held_c, held_nominal = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
@@ -404,13 +434,18 @@ def select_effects(
         null = 1.0 if cand.effect == "torque_gain" else 0.0
         too_short = cand.effect == "time_delay" and abs(value) < options.min_delay_samples * dt
         headline_at_bound = bool(fit.bound_flags()[sl][0] != 0)
-        significant = abs(value - null) > options.min_z * std if not headline_at_bound else True
+        gains = 1.0 - held_c / np.maximum(held, 1e-300)
+        judged = gains[np.isfinite(gains)]
+        unanimous = kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
+        min_z = options.min_z_records if unanimous else options.min_z
+        significant = abs(value - null) > min_z * std if not headline_at_bound else True
         if not significant or too_short:
             pool = [c for c in pool if c.key != cand.key]  # not significant: never again
             continue
         cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
-        gains = 1.0 - held_c / np.maximum(held, 1e-300)
         chosen.append(Step(cand, np.array(kept), float(bic_c - bic), cv, cv_c, gains, kind, held_nominal))
+        if cand.effect in FRICTIONLOSS_EFFECTS:  # the friction law of the literature: Fc sign(dq) + Fv dq
+            follow = [c for c in pool if c.effect == "viscous_friction" and c.target == cand.target]
         X, lo, hi = X_new, lo_new, hi_new
         q, _ = np.linalg.qr(_flat(X, sw))
         basis, bic, rss, held = q, bic_c, rss_c, held_c
