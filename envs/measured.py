@@ -26,6 +26,7 @@ from __future__ import annotations
 import codecs
 import csv
 import gzip
+import json
 import re
 import warnings
 import zlib
@@ -645,13 +646,18 @@ def _check_time_unit(step: float, column: _Column, label: str, src: str) -> None
         return
     guesses = [(unit, f) for unit, f in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))]
     likely = [(unit, f) for unit, f in guesses if _MIN_SAMPLE_RATE_HZ <= 1.0 / (step * f) <= _MAX_SAMPLE_RATE_HZ]
-    hint = (
-        f": time looks like {likely[0][0]} ({1.0 / (step * likely[0][1]):.4g} Hz then); the harness expects "
-        f"seconds: map it with {{column: {column.name}, scale: {column.scale * likely[0][1]:g}}} as data.columns.time "
-        f"(on the command line: '++data.columns.time={{column:{column.name},scale:{column.scale * likely[0][1]:g}}}')"
-        if likely
-        else "; the harness expects time in seconds"
-    )
+    hint = "; the harness expects time in seconds"
+    if likely:
+        unit, f = likely[0]
+        # seconds = f (scale file + offset): the mapping's scale and offset both take the factor
+        terms = [("column", json.dumps(column.name)), ("scale", f"{column.scale * f:g}")]
+        terms += [("offset", f"{column.offset * f:g}")] if column.offset else []
+        spaced = ", ".join(f"{k}: {v}" for k, v in terms)
+        packed = ",".join(f"{k}:{v}" for k, v in terms)
+        hint = (
+            f": time looks like {unit} ({1.0 / (step * f):.4g} Hz then); the harness expects seconds: map it with "
+            f"{{{spaced}}} as data.columns.time (on the command line: '++data.columns.time={{{packed}}}')"
+        )
     raise DataError(
         f"{src}: {label} steps by a median {step:.6g} per row, {1.0 / step:.4g} Hz sampling if in seconds, "
         f"slower than any joint log ({_MIN_SAMPLE_RATE_HZ:g} Hz at least){hint}"

@@ -310,7 +310,8 @@ _CRITERIA = {
     "explained": (
         "at least one effect passed the selection on the training records: BIC drop > {bic_margin:g}, "
         "held-out MSE gain >= {min_gain:g} (>= {min_gain_records:g} across records), |z| >= {min_z:g}; where each "
-        "of 3+ records held out in turn gains >= {min_gain_records:g}, any BIC drop and |z| >= {min_z_records:g}"
+        "of 3+ records held out in turn gains >= {min_gain_records:g}, any BIC drop (none for the viscous part of a "
+        "frictionloss just named, which must beat the frictionloss's other shapes) and |z| >= {min_z_records:g}"
     ),
     "unexplained_structure": (
         "no effect passed the selection, yet the nominal residual on the validation records is not white "

@@ -100,12 +100,20 @@ def excitation_report(regressor: np.ndarray, *, names: Sequence[str], max_cond: 
     W = np.asarray(regressor, dtype=float)
     W = W.reshape(-1, W.shape[-1])
     m, p = W.shape
+    if len(names) != p:
+        raise ValueError(f"{len(names)} names for a regressor of {p} columns")
+    if not np.all(np.isfinite(W)):
+        raise ValueError("the regressor holds NaN or inf")
     norms = np.linalg.norm(W, axis=0)
-    norms = np.where(norms > 1e-12 * max(float(norms.max(initial=0.0)), 1e-300), norms, np.inf)  # a 0 column: 0
-    s, vt = np.linalg.svd(W / norms, full_matrices=False)[1:]
+    norms = np.where(norms > 0, norms, np.inf)  # a zero column stays zero: a direction not excited at all
+    # the singular values and right vectors of W are those of its R factor (p x p): no m x p U of a long record
+    # (fewer rows than columns: all p right vectors, the missing singular values 0)
+    R = np.linalg.qr(W / norms, mode="r") if m >= p else W / norms
+    s, vt = np.linalg.svd(R, full_matrices=True)[1:]
+    s = np.concatenate([s, np.zeros(p - len(s))])
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
     rank = int(np.sum(s > s[0] * max(m, p) * np.finfo(float).eps))
-    weak = s < s[0] / max_cond
+    weak = s <= s[0] / max_cond  # all of them where nothing is excited (s[0] = 0)
     share = np.sum(vt[weak] ** 2, axis=0) if weak.any() else vt[-1] ** 2  # each parameter's part of the weak space
     order = np.argsort(share)[::-1]
     weakest = tuple(names[c] for c in order if share[c] >= 0.1 or c == order[0])

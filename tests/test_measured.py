@@ -20,7 +20,7 @@ from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, write_csv
 from envs.measured import read_many, read_measured
 from envs.split import split_train_validation
-from identify.excitation_check import check_excitation
+from identify.excitation_check import check_excitation, excitation_report
 
 CONF_DATA = Path(__file__).resolve().parents[1] / "conf" / "data"
 FS = 500.0
@@ -377,6 +377,21 @@ def test_too_little_excitation_names_the_parameters(tmp_path: Path, plant: Plant
     W, names = excitation_regressor(plant, data)
     with pytest.raises(DataError, match=r"small\.csv: too little excitation .*condition number .* weakest: .*MX1"):
         check_excitation(W, names=names, source=data.source)
+
+
+def test_the_excitation_report_counts_every_direction_the_data_do_not_move() -> None:
+    rng = np.random.default_rng(0)
+    W = rng.normal(size=(400, 4))
+    assert excitation_report(W, names=list("abcd")).poorly_excited == 0
+    W[:, 3] = 2.0 * W[:, 1] - W[:, 0] + 1e-6 * rng.normal(size=400)  # d in the span of a and b, to 1e-6
+    report = excitation_report(W, names=list("abcd"))
+    assert report.poorly_excited == 1 and report.cond > 1e5 and "d" in report.weakest and "c" not in report.weakest
+    nothing = excitation_report(np.zeros((50, 3)), names=list("abc"))  # no motion at all: every direction
+    assert nothing.poorly_excited == 3 and nothing.rank == 0
+    wide = excitation_report(rng.normal(size=(2, 5)), names=list("abcde"))  # fewer rows than columns
+    assert wide.poorly_excited == 3 and wide.rank == 2
+    with pytest.raises(ValueError, match="3 names for a regressor of 4 columns"):
+        excitation_report(W, names=list("abc"))
 
 
 def test_too_little_data_for_the_parameters_is_refused(plant: Plant) -> None:

@@ -498,26 +498,34 @@ def test_time_in_milliseconds_is_named(tmp_path: Path) -> None:
         read_measured(tmp_path / "ms.csv", load_plant("pendulum"))
 
 
-@pytest.mark.parametrize("data", ["csv", "dfki_double_pendulum"])  # columns null, and a config that maps time
-def test_the_time_unit_hint_is_an_override_that_works(tmp_path: Path, data: str) -> None:
+@pytest.mark.parametrize(
+    ("data", "name", "given"),
+    [
+        ("csv", "t", "t"),  # data.columns null
+        ("dfki_double_pendulum", "time [ms]", "time [ms]"),  # a config that maps time; a name Hydra must quote
+        ("csv", "t", {"column": "t", "scale": 10.0, "offset": 5.0}),  # in tens of ms from 5: both take the factor
+    ],
+)
+def test_the_time_unit_hint_is_an_override_that_works(tmp_path: Path, data: str, name: str, given: object) -> None:
     from omegaconf import OmegaConf
 
-    t = np.arange(500) * 2.0  # 2 ms steps written in ms, under the column name `t`
-    table = np.column_stack([t, np.sin(t / 1000), np.cos(t / 1000), np.zeros(500), np.zeros(500)])
+    t = np.arange(500) * 2.0  # 2 ms steps written in ms
+    raw = (t - 5.0) / 10.0 if isinstance(given, dict) else t
+    table = np.column_stack([raw, np.sin(t / 1000), np.cos(t / 1000), np.zeros(500), np.zeros(500)])
     path = tmp_path / "ms.csv"
-    np.savetxt(path, table, delimiter=",", header="t,q_shoulder,q_elbow,tau_shoulder,tau_elbow", comments="")
+    np.savetxt(path, table, delimiter=",", header=f"{name},q_shoulder,q_elbow,tau_shoulder,tau_elbow", comments="")
     plant = load_plant("two_link")
-    columns = {"time": "t", "q_shoulder": "q_shoulder", "q_elbow": "q_elbow"}
+    columns = {"time": given, "q_shoulder": "q_shoulder", "q_elbow": "q_elbow"}
     columns |= {"tau_shoulder": "tau_shoulder", "tau_elbow": "tau_elbow"}
     with pytest.raises(DataError, match=r"command line: '([^']+)'") as err:
         read_measured(path, plant, columns=columns)
     override = re.search(r"command line: '([^']+)'", str(err.value)).group(1)  # type: ignore[union-attr]
-    assert override == "++data.columns.time={column:t,scale:0.001}"
+    assert override.startswith("++data.columns.time={column:")
     cfg = compose_config(["system=two_link", f"data={data}", override], config_name="diagnose")
-    mapped = OmegaConf.to_container(cfg.data.columns)
-    assert mapped["time"] == {"column": "t", "scale": 0.001}  # type: ignore[index]
-    data_read = read_measured(path, plant, columns=columns | {"time": mapped["time"]})  # type: ignore[index]
-    assert np.isclose(np.median(np.diff(data_read.time)), 0.002)
+    mapped = OmegaConf.to_container(cfg.data.columns)["time"]  # type: ignore[index]
+    assert mapped["column"] == name  # type: ignore[index]
+    data_read = read_measured(path, plant, columns=columns | {"time": mapped})
+    np.testing.assert_allclose(data_read.time, t / 1000, atol=1e-9)
 
 
 def test_wrong_joint_count_in_a_system_config_is_named() -> None:

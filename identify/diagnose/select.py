@@ -17,11 +17,12 @@ coefficient each): the one with the lowest held-out error is taken, and a ramp o
 shape by `native_preference` (its width is a choice from a grid). Once a joint's frictionloss is named, its
 viscous friction is tried first, alone, in the next step (the friction law Fc sign(dq) + Fv dq of the
 literature; scored after other effects it would compete with, e.g. a rigid-body refit, its share is gone by the
-time it is tried). The pair must also beat, on the held-out records, the best other shape of that frictionloss
-alone (a ramp is one coefficient where the pair is two: MuJoCo's own soft frictionloss, a ramp of a few
-hundredths of a rad/s with sticking, fitted as sign(dq) plus dq, gives the dq column a share it does not have);
-where it lowers the held-out error of each of three or more records, the BIC is not asked of it. Columns that
-the chosen ones already span are dropped.
+time it is tried). It is judged by the rules above, except that where it lowers the held-out error of each of
+three or more records the BIC is not asked of it, and it must also beat, on the held-out data, the best other
+shape of that frictionloss alone, admissible or not (a ramp is one coefficient where the pair is two: MuJoCo's
+own soft frictionloss, a ramp of a few hundredths of a rad/s with sticking, fitted as sign(dq) plus dq, gives the
+dq column a share it does not have). Where it fails, it is not tried again in that step. Columns that the
+chosen ones already span are dropped.
 
 Where records are held out in turn, the rigid-body refit's columns that a constant torque on the joints
 partly stands in for on these data (less than `offset_independence` of their norm outside the span of the
@@ -361,6 +362,7 @@ def select_effects(
         named): the pair must beat it too, or a wider ramp is what the viscous column stands for."""
         best: Scored | None = None
         admissible: list[Scored] = []
+        scored.clear()
         for cand in cands:
             if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
                 continue
@@ -383,6 +385,7 @@ def select_effects(
             else:
                 rss_c, held_c = score(kept)
             held_nominal = tuple(cand.parameter_names[c] for c in dropped)
+            scored[cand.key] = _fold_mse(held_c, folds, n_folds)
             bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
             gains = 1.0 - held_c / np.maximum(held, 1e-300)  # NaN for a fold with no value (`_scores`)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
@@ -398,12 +401,13 @@ def select_effects(
                 best = (bic_c, cand, kept, rss_c, held_c, held_nominal)
         return best, admissible
 
+    scored: dict[str, float] = {}  # held-out MSE of every candidate scored by the last admissible_among
     follow: list[Candidate] = []  # tried first, alone: the viscous part of a joint whose frictionloss was named
     other_shapes = np.inf  # the held-out MSE of the best other shape of that frictionloss
     while len(chosen) < options.max_findings:
         best, admissible = admissible_among(follow, other_shapes) if follow else admissible_among(pool)
-        if best is None and follow:
-            best, admissible = admissible_among(pool)
+        if best is None and follow:  # not without the ramp check in the same step
+            best, admissible = admissible_among([c for c in pool if c.key not in {f.key for f in follow}])
         follow = []
         if best is None:
             break
@@ -424,7 +428,12 @@ def select_effects(
                 best[4], folds, n_folds
             ):
                 best = ideal[0]
-            other_shapes = min([_fold_mse(a[4], folds, n_folds) for a in shapes if a is not best], default=np.inf)
+            others = [  # every other shape of this frictionloss scored in this step, admissible or not
+                c.key
+                for c in pool
+                if c.effect in FRICTIONLOSS_EFFECTS and c.target == best[1].target and c.key != best[1].key
+            ]
+            other_shapes = min([scored[k] for k in others if k in scored], default=np.inf)
         bic_c, cand, kept, rss_c, held_c, held_nominal = best
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
