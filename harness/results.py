@@ -84,7 +84,9 @@ def summary_table(results: dict[str, Any]) -> str:
             "excitation"
         )
     for joint, rms in val["torque_rms"].items():
-        lines.append(f"validation {joint}: torque RMS {rms:.4g} N m (sensor noise std {val['noise_std'][joint]:.4g})")
+        unit = val.get("unit", {}).get(joint, "N m")  # a slide joint's is a force
+        noise = val["noise_std"][joint]
+        lines.append(f"validation {joint}: torque RMS {rms:.4g} {unit} (sensor noise std {noise:.4g})")
     lines.append("timing: " + ", ".join(f"{k} {v:.2f} s" for k, v in results["timing_s"].items()))
     return "\n".join(lines)
 

@@ -202,6 +202,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         "validation": {
             "torque_rms": val_rms,
             "noise_std": dict(zip(plant.joint_names, noise_std.tolist(), strict=True)),
+            "unit": {n: "N m" if hinge else "N" for n, hinge in zip(plant.joint_names, plant.hinge, strict=True)},
             "samples": int(rows.sum()),
         },
         "data": {

@@ -94,3 +94,24 @@ def test_hinge_tells_hinges_from_slides(tmp_path: Path) -> None:
     )
     assert plant_from_xml(xml, "cart", tmp_path).hinge.tolist() == [False, True]
     assert load_plant("two_link").hinge.tolist() == [True, True]
+
+
+def test_a_slide_joints_effects_are_forces_in_their_units(tmp_path: Path) -> None:
+    from dynamics.plant import plant_from_xml
+    from identify.diagnose.candidates import CANDIDATE_EFFECTS, candidates
+
+    xml = (
+        '<mujoco><worldbody><body><joint name="rail" type="slide" axis="1 0 0"/><geom size="0.1" mass="1"/>'
+        '<body><joint name="arm" axis="0 1 0"/><geom size="0.1" pos="0 0 -0.2" mass="0.5"/></body></body>'
+        '</worldbody><actuator><motor joint="rail"/><motor joint="arm"/></actuator></mujoco>'
+    )
+    plant = plant_from_xml(xml, "cart", tmp_path)
+    pool = candidates(plant, tuple(CANDIDATE_EFFECTS), np.random.default_rng(0))
+    units = {(c.effect, c.target): c.unit for c in pool}
+    assert units[("armature", "rail")] == "kg" and units[("armature", "arm")] == "kg m^2"
+    assert units[("viscous_friction", "rail")] == "N s/m" and units[("viscous_friction", "arm")] == "N m s/rad"
+    assert units[("coulomb_friction", "rail")] == "N" and units[("coulomb_friction", "arm")] == "N m"
+    assert units[("joint_stiffness", "rail")] == "N/m"
+    assert not any(c.target == "rail" and ("rad" in c.unit or "N m" in c.unit) for c in pool), sorted(
+        {(c.effect, c.unit) for c in pool if c.target == "rail"}
+    )

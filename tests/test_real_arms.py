@@ -180,3 +180,20 @@ def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
     assert cfg.system.mjcf == str(model.resolve())
     results = run(cfg, tmp_path / "run")
     assert json.loads((tmp_path / "run" / "results.json").read_text())["system"] == results["system"]
+
+
+def test_a_slide_joint_is_identified_and_reported_as_a_force(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    model = tmp_path / "cart.xml"
+    model.write_text(
+        '<mujoco model="cart"><option timestep="0.002"/><worldbody><body name="cart">'
+        '<joint name="rail" type="slide" axis="1 0 0" range="-0.3 0.3" damping="0.5"/>'
+        '<geom type="box" size="0.1 0.05 0.05" mass="1"/><body name="arm"><joint name="arm" axis="0 1 0" '
+        'range="-2 2" damping="0.01"/><geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.5"/>'
+        '</body></body></worldbody><actuator><motor joint="rail" ctrlrange="-20 20"/>'
+        '<motor joint="arm" ctrlrange="-5 5"/></actuator></mujoco>'
+    )
+    results = _run(model, tmp_path)
+    assert results["validation"]["unit"] == {"rail": "N", "arm": "N m"}
+    assert results["max_abs_z"] <= 4.5
+    out = capsys.readouterr().out
+    assert "validation rail: torque RMS" in out and " N (sensor noise" in out and " N m (sensor noise" in out

@@ -53,7 +53,7 @@ what decides between candidates; the calibrated model then applies them exactly.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -699,4 +699,13 @@ def candidates(
     unknown = [e for e in effects if e not in CANDIDATE_EFFECTS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
-    return [c for e in effects for c in CANDIDATE_EFFECTS[e](plant, rng, train)]
+    slides = {n for n, hinge in zip(plant.joint_names, plant.hinge, strict=True) if not hinge}
+    return [
+        replace(c, unit=_SLIDE_UNITS.get(c.unit, c.unit)) if c.target in slides else c
+        for e in effects
+        for c in CANDIDATE_EFFECTS[e](plant, rng, train)
+    ]
+
+
+# a joint effect's unit on a slide joint (a force, a position in m) instead of a hinge's (a torque, an angle in rad)
+_SLIDE_UNITS = {"kg m^2": "kg", "N m s/rad": "N s/m", "N m": "N", "N m/rad": "N/m", "rad": "m"}
