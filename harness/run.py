@@ -43,16 +43,12 @@ from identify.compare import compare_with_truth, linear_combination, predict_tor
 from identify.derivatives import States, derive_states
 from identify.derived import DERIVED
 from identify.estimators import estimate
-from identify.excitation_check import excitation_report
+from identify.excitation_check import MAX_COND, excitation_report
 from identify.problem import Estimate, Problem, build_problem
 
 __all__ = ["main", "run"]
 
 OUTPUTS = ("data.csv", "recording.rrd", "results.json")  # in writing order: results.json marks a finished run
-
-POOR_EXCITATION_COND = 1e3
-"""A direction of the column-normalised base regressor whose singular value is below the largest one / this is
-poorly excited (the diagnosis refuses such data at the same threshold, `check_excitation`): a run reports it."""
 
 
 @contextmanager
@@ -156,7 +152,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         val_pred = predict_torque(model, base, est.beta, val_states.q[rows], val_states.dq[rows], val_states.ddq[rows])
         val_rms = torque_rms(val_pred, val_data.tau[rows], plant.joint_names)
     cond_xtx, cond_colnorm = conditioning(problem.W)
-    excited = excitation_report(problem.W, names=list(problem.names), max_cond=POOR_EXCITATION_COND)
+    excited = excitation_report(problem.W, names=list(problem.names))
     ratios = limit_ratios(plant, design, limits, data, bool(cfg.system.torque_driven))
     noise_std = np.sqrt(np.asarray(sensor.sigma_tau) ** 2 + sensor.tau_resolution**2 / 12.0) * plant.actuated
     results: dict[str, Any] = {
@@ -169,7 +165,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
             "cond_W_colnorm": cond_colnorm,
             "poorly_excited": {  # directions the data hardly move: their estimates rest on the prior, if any
                 "directions": excited.poorly_excited,
-                "cond_threshold": POOR_EXCITATION_COND,
+                "cond_threshold": MAX_COND,
                 "weakest": list(excited.weakest) if excited.poorly_excited else [],
                 "weakest_direction": excited.weakest_direction if excited.poorly_excited else "",
             },

@@ -9,7 +9,11 @@ import numpy as np
 
 from dynamics.errors import DataError
 
-__all__ = ["ExcitationCheck", "check_excitation", "excitation_report"]
+__all__ = ["MAX_COND", "ExcitationCheck", "check_excitation", "excitation_report"]
+
+MAX_COND = 1e3
+"""Largest column-normalised condition number of well-excited data: a direction whose singular value is below the
+largest one / MAX_COND is poorly excited (a run reports it, the diagnosis refuses such data)."""
 
 
 @dataclass(frozen=True)
@@ -42,7 +46,7 @@ def check_excitation(
     *,
     names: Sequence[str],
     source: str = "data",
-    max_cond: float = 1e3,
+    max_cond: float = MAX_COND,
     min_equations_per_parameter: int = 10,
 ) -> ExcitationCheck:
     """Refuse data that are too short for, or do not excite, the parameters of a regressor.
@@ -61,13 +65,8 @@ def check_excitation(
     Raises:
         DataError: too few equations, a parameter whose column is zero, or a condition number above max_cond.
     """
-    W = np.asarray(regressor, dtype=float)
-    W = W.reshape(-1, W.shape[-1])
+    W = _stacked(regressor, names, source)
     m, p = W.shape
-    if len(names) != p:
-        raise ValueError(f"{len(names)} names for a regressor of {p} columns")
-    if not np.all(np.isfinite(W)):
-        raise DataError(f"{source}: the regressor holds NaN or inf (check the derivatives of the data)")
     if m < min_equations_per_parameter * p:
         raise DataError(
             f"{source}: too little data: {m} equations for {p} parameters; at least "
@@ -77,7 +76,7 @@ def check_excitation(
     dead = [names[int(c)] for c in np.flatnonzero(norms <= 1e-12 * max(norms.max(), 1e-300))]
     if dead:
         raise DataError(f"{source}: the data do not excite {', '.join(dead)} at all (their regressor columns are 0)")
-    check = excitation_report(W, names=names, max_cond=max_cond)
+    check = _report(W, names, max_cond)
     if check.cond > max_cond:
         raise DataError(
             f"{source}: too little excitation for the parameters asked for: {check.poorly_excited} direction(s) of "
@@ -88,7 +87,7 @@ def check_excitation(
     return check
 
 
-def excitation_report(regressor: np.ndarray, *, names: Sequence[str], max_cond: float = 1e3) -> ExcitationCheck:
+def excitation_report(regressor: np.ndarray, *, names: Sequence[str], max_cond: float = MAX_COND) -> ExcitationCheck:
     """How well a regressor's columns are excited, without refusing anything (`check_excitation` refuses).
 
     Args:
@@ -97,13 +96,23 @@ def excitation_report(regressor: np.ndarray, *, names: Sequence[str], max_cond: 
         max_cond: a direction whose singular value of the column-normalised regressor is below the largest one /
             max_cond counts as poorly excited.
     """
+    return _report(_stacked(regressor, names, "data"), names, max_cond)
+
+
+def _stacked(regressor: np.ndarray, names: Sequence[str], source: str) -> np.ndarray:
+    """(M, p) rows of a (N, nv, p) or (M, p) regressor, its names and values checked."""
     W = np.asarray(regressor, dtype=float)
     W = W.reshape(-1, W.shape[-1])
-    m, p = W.shape
-    if len(names) != p:
-        raise ValueError(f"{len(names)} names for a regressor of {p} columns")
+    if len(names) != W.shape[1]:
+        raise ValueError(f"{len(names)} names for a regressor of {W.shape[1]} columns")
     if not np.all(np.isfinite(W)):
-        raise ValueError("the regressor holds NaN or inf")
+        raise DataError(f"{source}: the regressor holds NaN or inf (check the derivatives of the data)")
+    return W
+
+
+def _report(W: np.ndarray, names: Sequence[str], max_cond: float) -> ExcitationCheck:
+    """`excitation_report` of the checked rows W (M, p)."""
+    m, p = W.shape
     norms = np.linalg.norm(W, axis=0)
     norms = np.where(norms > 0, norms, np.inf)  # a zero column stays zero: a direction not excited at all
     # the singular values and right vectors of W are those of its R factor (p x p): no m x p U of a long record

@@ -685,6 +685,10 @@ CANDIDATE_EFFECTS: dict[str, _Factory] = {
 }
 
 
+# a joint effect's unit on a slide joint (a force, a position in m) instead of a hinge's (a torque, an angle in rad)
+_SLIDE_UNITS = {"kg m^2": "kg", "N m s/rad": "N s/m", "N m": "N", "N m/rad": "N/m", "rad": "m"}
+
+
 def candidates(
     plant: Plant, effects: list[str] | tuple[str, ...], rng: np.random.Generator, train: Signals | None = None
 ) -> list[Candidate]:
@@ -705,7 +709,3 @@ def candidates(
         for e in effects
         for c in CANDIDATE_EFFECTS[e](plant, rng, train)
     ]
-
-
-# a joint effect's unit on a slide joint (a force, a position in m) instead of a hinge's (a torque, an angle in rad)
-_SLIDE_UNITS = {"kg m^2": "kg", "N m s/rad": "N s/m", "N m": "N", "N m/rad": "N/m", "rad": "m"}

@@ -355,6 +355,13 @@ def select_effects(
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
     Scored = tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]
 
+    def fold_gains(held_c: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """((folds,) relative drop of the held-out MSE against the current one (NaN for a fold with no value,
+        `_scores`), the finite ones, whether 3+ records held out in turn each gain `min_gain`)."""
+        gains = 1.0 - held_c / np.maximum(held, 1e-300)
+        judged = gains[np.isfinite(gains)]
+        return gains, judged, kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
+
     def admissible_among(cands: list[Candidate], shape_mse: float | None = None) -> tuple[Scored | None, list[Scored]]:
         """(the admissible candidate of lowest BIC or None, every admissible one) among `cands`, given the
         columns chosen so far (X, basis, held, bic of the enclosing loop). `shape_mse`: for the viscous part of a
@@ -385,14 +392,13 @@ def select_effects(
             else:
                 rss_c, held_c = score(kept)
             held_nominal = tuple(cand.parameter_names[c] for c in dropped)
-            scored[cand.key] = _fold_mse(held_c, folds, n_folds)
             bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
-            gains = 1.0 - held_c / np.maximum(held, 1e-300)  # NaN for a fold with no value (`_scores`)
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
-            judged = gains[np.isfinite(gains)]
-            unanimous = kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
+            scored[cand.key] = cv_c
+            _, judged, unanimous = fold_gains(held_c)
             bic_asked = -options.bic_margin if not unanimous else (np.inf if shape_mse is not None else 0.0)
-            if cv_c > (1 - min_gain) * min(cv, np.inf if shape_mse is None else shape_mse) or bic_c - bic > bic_asked:
+            against = cv if shape_mse is None else min(cv, shape_mse)
+            if cv_c > (1 - min_gain) * against or bic_c - bic > bic_asked:
                 continue
             if np.count_nonzero(judged > 0) * 2 <= len(judged):
                 continue  # it must lower the held-out error in most folds, not on average only
@@ -443,9 +449,7 @@ def select_effects(
         null = 1.0 if cand.effect == "torque_gain" else 0.0
         too_short = cand.effect == "time_delay" and abs(value) < options.min_delay_samples * dt
         headline_at_bound = bool(fit.bound_flags()[sl][0] != 0)
-        gains = 1.0 - held_c / np.maximum(held, 1e-300)
-        judged = gains[np.isfinite(gains)]
-        unanimous = kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
+        gains, _, unanimous = fold_gains(held_c)
         min_z = options.min_z_records if unanimous else options.min_z
         significant = abs(value - null) > min_z * std if not headline_at_bound else True
         if not significant or too_short:
