@@ -163,3 +163,21 @@ def test_the_calibrated_mjcf_keeps_the_nominal_lateral_moments_and_says_why(tmp_
         assert calibrated.theta[10 * link + mx] == pytest.approx(plant.theta[10 * link + mx], abs=1e-9)
     mz2 = 10 + INERTIAL_SYMBOLS.index("MZ")
     assert calibrated.theta[mz2] - plant.theta[mz2] == pytest.approx(ALONG_LINK["d(MZ2)"], rel=0.1)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_torque_zero_shared_by_every_record_is_an_offset_not_a_lateral_moment(seed: int) -> None:
+    """The same shoulder offset in every record transfers to the held-out records as a lateral first moment
+    would, at these angles: the moment adds nothing beside a constant torque, so it stays nominal (fitted to
+    small angles it would extrapolate as g MX cos(q) to a swing-up) and the offset is named instead."""
+    train, pool = _train([0.06] * 4, ALONG_LINK, seed)
+    steps, _ = select_effects(pool, train, np.full(2, 1.0 / SIGMA**2), SelectionOptions())
+    rigid = next(s for s in steps if s.candidate.effect == "rigid_body")
+    assert set(rigid.held_nominal) == {"d(MX1)", "d(MX2)"}, [(s.candidate.key, s.held_nominal) for s in steps]
+    assert any(s.candidate.key == "torque_offset:shoulder" for s in steps), [s.candidate.key for s in steps]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_real_lateral_mass_offset_beside_a_shared_torque_zero_is_refitted(seed: int) -> None:
+    step = _rigid_step([0.06] * 4, {**ALONG_LINK, "d(MX1)": 0.01}, seed)
+    assert step.held_nominal == ()

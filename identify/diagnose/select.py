@@ -28,11 +28,15 @@ Where records are held out in turn, the rigid-body refit's columns that a consta
 partly stands in for on these data (less than `offset_independence` of their norm outside the span of the
 joints' constant columns, i.e. a constant accounts for more than a fifth of their energy at 0.9: at small angles
 a lateral first moment, g MX cos(q), is nearly a torque offset) are refitted only where that lowers the held-out
-error; where it does not, they stay at their nominal values, together, and the finding says so
-(`Step.held_nominal`). A sensor offset that changes between power-ups fits as such a first moment on the
-training records and transfers to none of the others; a real mass offset lowers the held-out error too and is
-kept. Where every column the refit has left is offset-like there is nothing to compare them with: the candidate
-is then judged, as every candidate is, by its own held-out gain against no refit.
+error, both against the refit without them and against that refit beside a constant torque on each joint (the
+sensor's zero, which the nominal model does not constrain as it constrains a first moment: a moment that adds
+nothing to the constants on these data is told apart from them only by motion at other angles, and fitted to
+small angles it extrapolates as g MX cos(q) to a swing-up where a constant would not); where it does not, they
+stay at their nominal values, together, and the finding says so (`Step.held_nominal`). A sensor offset that
+changes between power-ups fits as such a first moment on the training records and transfers to none of the
+others; a real mass offset lowers the held-out error too, beside the constants, and is kept. Where every
+column the refit has left is offset-like there is nothing to compare them with: the candidate is then judged,
+as every candidate is, by its own held-out gain against no refit.
 
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
 counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
@@ -222,18 +226,22 @@ def _scores(
     return max(rss, 0.0), held
 
 
+def _joint_constants(n: int, actuated: np.ndarray, used: np.ndarray | None = None) -> np.ndarray:
+    """(n, nv, actuated joints) a constant torque on each actuated joint, as a column (0 where not `used`)."""
+    act = np.flatnonzero(actuated)
+    const = np.zeros((n, len(actuated), act.size))
+    const[:, act, np.arange(act.size)] = 1.0
+    return const * used[:, :, None] if used is not None else const
+
+
 def _offset_like(
     cols: np.ndarray, sw: np.ndarray, actuated: np.ndarray, share: float, used: np.ndarray | None = None
 ) -> set[int]:
     """Indices of the columns with less than `share` of their norm outside the span of constant joint torques
     (constant on the (row, joint) values that are `used`, as the columns are)."""
-    act = np.flatnonzero(actuated)
-    if not act.size:
+    const = _joint_constants(cols.shape[0], actuated, used)
+    if not const.shape[2]:
         return set()  # no measured torque, no offset to stand in for
-    const = np.zeros((cols.shape[0], cols.shape[1], act.size))
-    const[:, act, np.arange(act.size)] = 1.0
-    if used is not None:
-        const *= used[:, :, None]
     basis = np.linalg.qr(_flat(const, sw))[0]
     return {c for c in range(cols.shape[2]) if _independence(basis, _flat(cols[:, :, c : c + 1], sw)[:, 0]) < share}
 
@@ -278,21 +286,30 @@ def _score_added(
     return _scores(A, b, folds, n_folds, np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]]))
 
 
+def _unbounded(lo: np.ndarray, hi: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds `lo`, `hi` extended by unbounded ones for the columns `cols` (n, nv, k)."""
+    inf = np.full(cols.shape[2], np.inf)
+    return np.concatenate([lo, -inf]), np.concatenate([hi, inf])
+
+
 def _without_offset_like(
     kept: list[int],
     offset_like: set[int],
     score: Callable[[list[int]], tuple[float, np.ndarray]],
     mse: Callable[[np.ndarray], float],
+    score_offsets: Callable[[list[int]], tuple[float, np.ndarray]],
 ) -> tuple[list[int], tuple[float, np.ndarray], list[int]]:
     """(kept columns, their `score`, the offset-like columns dropped): the kept columns in `offset_like` are
     dropped, together, where the fit without them has a held-out MSE (`mse` of the folds) no higher than with
-    them (see the module docstring)."""
+    them, alone or beside a constant torque per joint (`score_offsets` of some columns: them and the joints'
+    constants; see the module docstring)."""
     with_all = score(kept)
     rest = [c for c in kept if c not in offset_like]
     if len(rest) in (0, len(kept)):
         return kept, with_all, []
     without = score(rest)
-    if mse(without[1]) > mse(with_all[1]):
+    beyond_offsets = mse(score_offsets(rest)[1]) > mse(score_offsets(kept)[1])
+    if mse(without[1]) > mse(with_all[1]) and beyond_offsets:
         return kept, with_all, []
     return rest, without, [c for c in kept if c in offset_like]
 
@@ -341,6 +358,7 @@ def select_effects(
         for c in pool
         if c.effect == "rigid_body" and kind == "files"
     }
+    const = _joint_constants(n, train.actuated, train.used)  # what an offset-like column must beat
     chosen: list[Step] = []
     X = np.zeros((n, nv, 0)) if nuisance is None else nuisance
     lo, hi = np.full(X.shape[2], -np.inf), np.full(X.shape[2], np.inf)
@@ -386,8 +404,11 @@ def select_effects(
             score = partial(_score_added, X, lo, hi, cols, cand, b, sw, folds, n_folds)
             dropped: list[int] = []
             if cand.key in offset_like:
+                free = const[:, :, _span_free(basis, _flat(const, sw))]  # the joints' constants not chosen yet
+                Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
+                score_offsets = partial(_score_added, Xc, lo_c, hi_c, cols, cand, b, sw, folds, n_folds)
                 kept, (rss_c, held_c), dropped = _without_offset_like(
-                    kept, offset_like[cand.key], score, lambda h: _fold_mse(h, folds, n_folds)
+                    kept, offset_like[cand.key], score, lambda h: _fold_mse(h, folds, n_folds), score_offsets
                 )
             else:
                 rss_c, held_c = score(kept)
