@@ -29,7 +29,7 @@ Mapping (what each finding becomes in `<system>_calibrated.xml`):
 Effects of quasi-direct-drive actuators that MuJoCo has no attribute for are written as documented `numeric`
 custom elements, named sysid_<effect>_<joint>, with their parameters (SI units), read back by
 `mjcf_measured_torque` (and by anyone who adds them as a `qfrc_applied` in a simulation loop):
-    cogging                        [n, a, b]: tau += a sin(n q) + b cos(n q) (n cycles per radian of q)
+    cogging                        [n, a, b]: tau += a sin(n q) + b cos(n q) (n cycles per revolution of q)
     stribeck_friction              [Fs, vs]: tau += Fs sign(dq) exp(-(dq / vs)^2)
     load_friction                  [mu]: tau += mu |tau_j| sign(dq_j), tau_j the joint's torque without it
     backlash                       [b]: the link angle is q - (b / 2) sign(dq) (lost motion b, in contact)

@@ -300,7 +300,9 @@ MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
 SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # ramp widths of a smooth Coulomb friction tried [rad/s]
 FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction")  # shapes of one joint frictionloss
-COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # cycles per radian scanned for position-periodic torque [1/rad]
+COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # harmonics n of sin(n q) scanned for position-periodic torque
+# [cycles per revolution]
+MIN_COGGING_PERIODS = 1.0  # the training motion of the joint spans at least this many periods 2 pi / n
 
 
 def _joint_effects(plant: Plant) -> list[Candidate]:
@@ -481,15 +483,22 @@ def _stiffness_value(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[
     return 1.0 / c, sd / c**2
 
 
-def cogging_harmonic(s: Signals, j: int) -> tuple[float, float]:
-    """The position-periodic torque that best explains joint j's residual row: (cycles per rad n, amplitude).
+def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
+    """The position-periodic torque that best explains joint j's residual row: (harmonic n [cycles per
+    revolution], amplitude), or None where the joint's motion spans no period of any.
 
-    Scans `COGGING_HARMONICS`: the residual in the analysis band is fitted by a sin(n q_j) + b cos(n q_j)
-    (in the same band, with a constant); the n explaining the most variance wins.
+    Scans the harmonics of `COGGING_HARMONICS` whose period 2 pi / n the joint's range of motion covers
+    `MIN_COGGING_PERIODS` times (a longer period is a smooth function of q on these data, as gravity, an
+    offset or a spring are, and it would extrapolate as a sinusoid to angles the data never reached): the
+    residual in the analysis band is fitted by a sin(n q_j) + b cos(n q_j) (in the same band, with a
+    constant); the n explaining the most variance wins.
     """
     r = s.residual[:, j]
-    best = (float(COGGING_HARMONICS[0]), 0.0, -1.0)
-    for n in COGGING_HARMONICS:
+    shown = COGGING_HARMONICS[COGGING_HARMONICS * np.ptp(s.q[:, j]) >= 2 * np.pi * MIN_COGGING_PERIODS]
+    if not shown.size:
+        return None
+    best = (float(shown[0]), 0.0, -1.0)
+    for n in shown:
         cols = s.smooth(np.column_stack([np.sin(n * s.q[:, j]), np.cos(n * s.q[:, j]), np.ones(s.n_samples)]))
         c, *_ = np.linalg.lstsq(cols, r, rcond=None)
         explained = float(np.sum((cols @ c) ** 2))
@@ -505,9 +514,10 @@ def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:
         return []
     out = []
     for j, name in enumerate(plant.joint_names):
-        if not plant.actuated[j] or np.ptp(train.q[:, j]) < 1e-3:
+        harmonic = cogging_harmonic(train, j) if plant.actuated[j] else None
+        if harmonic is None:
             continue
-        n, _ = cogging_harmonic(train, j)
+        n = harmonic[0]
 
         def build(s: Signals, j: int = j, n: float = n) -> np.ndarray:
             out = np.zeros((s.n_samples, plant.nv, 2))
@@ -522,7 +532,7 @@ def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:
             return a, float(np.sqrt(max(grad @ cov[:2, :2] @ grad, 0.0)))
 
         note = (
-            f"position-periodic torque (cogging) a sin(n q) + b cos(n q), n = {n:g} cycles/rad (period "
+            f"position-periodic torque (cogging) a sin(n q) + b cos(n q), n = {n:g} cycles per revolution (period "
             f"{2 * np.pi / n:.4g} rad); MuJoCo has no such attribute: numeric sysid_cogging_<joint> = [n, a, b]"
         )
         out.append(

@@ -65,7 +65,7 @@ class Injected:
         effect: its name (see the module docstring).
         joint: the joint it acts on (for `payload`: the joint whose body carries it).
         size: its size in SI units (for `torque_gain`: the departure from 1).
-        extra: a shape parameter (cycles per rad for `cogging`, Stribeck speed [rad/s], disturbance
+        extra: a shape parameter (cycles per revolution for `cogging`, Stribeck speed [rad/s], disturbance
             frequency [Hz]).
     """
 

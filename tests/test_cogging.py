@@ -1,0 +1,63 @@
+"""The cogging candidate's period: scanned only among periods the joint's motion spans at least once
+(`MIN_COGGING_PERIODS`). A longer period is a smooth function of q on the data (as gravity, an offset or a
+spring), and fitted as a sinusoid it would extrapolate to angles the data never reached."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dynamics.plant import load_plant
+from identify.diagnose.candidates import COGGING_HARMONICS, MIN_COGGING_PERIODS, Signals, candidates, cogging_harmonic
+
+
+def _signals(amplitude_rad: float, torque: np.ndarray | None = None, n_true: float = 0.0) -> Signals:
+    """A shoulder swinging +-`amplitude_rad` for 20 s at 100 Hz (the elbow still) whose residual is
+    0.05 sin(n_true q) (none where n_true is 0)."""
+    t = np.arange(0.0, 20.0, 0.01)
+    q = np.zeros((len(t), 2))
+    q[:, 0] = amplitude_rad * np.sin(2 * np.pi * 0.37 * t) * np.sin(2 * np.pi * 0.05 * t + 0.3)
+    tau = np.zeros_like(q)
+    if n_true:
+        tau[:, 0] = 0.05 * np.sin(n_true * q[:, 0])
+    zeros = np.zeros_like(q)
+    return Signals(
+        time=t,
+        q=q,
+        dq=zeros,
+        ddq=zeros,
+        tau=tau,
+        tau_nominal=zeros.copy(),
+        dtau_dq=np.zeros((len(t), 2, 2)),
+        dtau_dt=zeros,
+        regressor=np.zeros((len(t), 2, 20)),
+        record=np.zeros(len(t), dtype=int),
+        actuated=np.ones(2, dtype=bool),
+    )
+
+
+def test_a_period_the_motion_spans_is_found() -> None:
+    s = _signals(1.0, n_true=8.0)  # range 2 rad: periods up to 2 rad (n >= pi) are scanned
+    n, amplitude = cogging_harmonic(s, 0)  # type: ignore[misc]
+    assert n == 8.0 and amplitude == pytest.approx(0.05, rel=0.05)
+
+
+def test_a_period_longer_than_the_motion_is_not_scanned() -> None:
+    """n = 2 (period pi rad) over a 1.4 rad range: that residual is a smooth bump, not a periodic torque."""
+    s = _signals(0.7, n_true=2.0)
+    span = float(np.ptp(s.q[:, 0]))
+    n, _ = cogging_harmonic(s, 0)  # type: ignore[misc]
+    assert n * span >= 2 * np.pi * MIN_COGGING_PERIODS
+    assert n > 2.0
+    # the old scan, over every harmonic, did pick the long period
+    assert 2 * np.pi / COGGING_HARMONICS[0] > span
+
+
+def test_a_joint_that_spans_no_period_has_no_cogging_candidate() -> None:
+    """The elbow does not move and the shoulder moves +-0.05 rad: no scanned period (the shortest is 2 pi / 40
+    = 0.157 rad) fits in 0.1 rad."""
+    s = _signals(0.05, n_true=40.0)
+    assert cogging_harmonic(s, 0) is None
+    assert cogging_harmonic(s, 1) is None
+    plant = load_plant("two_link")
+    assert [c for c in candidates(plant, ["cogging"], np.random.default_rng(0), s) if c.effect == "cogging"] == []
