@@ -235,6 +235,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     mjcf_name = f"{plant.name}_calibrated.xml"
     payload = result.to_dict(mjcf_name=mjcf_name)
     payload["seed"] = int(cfg.seed)
+    payload["units"] = _units(plant)
     payload["split"] = split.describe()
     payload["repairs"] = repairs
     payload["ignored_columns"] = ignored  # columns of each file the reader did not use
@@ -354,7 +355,9 @@ def _write_outputs(
         steps.append(
             (
                 out / "diagnosis.rrd",
-                lambda p: record_diagnosis(p, plant, result, _findings_markdown(result), dataset=dataset),
+                lambda p: record_diagnosis(
+                    p, plant, result, _findings_markdown(result, _units(plant)), dataset=dataset
+                ),
             )
         )
     steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
@@ -369,7 +372,15 @@ def _write_outputs(
         raise
 
 
-def _findings_markdown(result: Diagnosis) -> str:
+def _units(plant: Plant) -> dict[str, dict[str, str]]:
+    """Per joint: the unit of its torque (`torque`: N m on a hinge, N on a slide) and of its angle (`angle`)."""
+    return {
+        j: {"torque": "N m", "angle": "rad"} if hinge else {"torque": "N", "angle": "m"}
+        for j, hinge in zip(plant.joint_names, plant.hinge, strict=True)
+    }
+
+
+def _findings_markdown(result: Diagnosis, units: dict[str, dict[str, str]]) -> str:
     lines = [f"**verdict: {result.verdict}** ({result.verdict_reason})", ""]
     lines += [f"- anomaly: {a['kind']} {a['joint']} in {Path(a['source']).name}" for a in result.anomalies]
     lines += [
@@ -379,11 +390,13 @@ def _findings_markdown(result: Diagnosis) -> str:
     ]
     for f in result.findings:
         lines.append(f"| {f.name} | {f.target} | {f.value:.5g} | {f.std:.2g} | {f.unit} | {f.at_bound or ''} |")
-    lines += ["", "| model | joint | torque RMS [N m] | simulation error [rad] |", "|---|---|---:|---:|"]
+    lines += ["", "| model | joint | torque RMS | simulation error |", "|---|---|---:|---:|"]
     for model, m in result.models.items():
         for j, v in m["torque_rms"].items():
             sim = m.get("simulation_error", {}).get(j)
-            lines.append(f"| {model} | {j} | {v:.4g} | {'-' if sim is None else f'{sim:.4g}'} |")
+            u = units[j]
+            err = "-" if sim is None else f"{sim:.4g} {u['angle']}"
+            lines.append(f"| {model} | {j} | {v:.4g} {u['torque']} | {err} |")
     return "\n".join(lines)
 
 
@@ -403,14 +416,19 @@ def _summary(payload: dict[str, Any]) -> str:
         lines.append(
             f"  outside the training motion: {d['joint']} in {Path(d['source']).name} ({share:.0%} of its rows)"
         )
+    units = payload.get("units", {})
+
+    def unit(j: str, kind: str) -> str:
+        return str(units.get(j, {}).get(kind, "N m" if kind == "torque" else "rad"))
+
     for model, m in payload["models"].items():
-        tau = ", ".join(f"{j} {v:.4f}" for j, v in m["torque_rms"].items())
-        sim = ", ".join(f"{j} {v:.4f}" for j, v in m.get("simulation_error", {}).items())
-        lines.append(f"  {model:18s} torque RMS [N m]: {tau}; simulation error [rad]: {sim or '-'}")
+        tau = ", ".join(f"{j} {v:.4f} {unit(j, 'torque')}" for j, v in m["torque_rms"].items())
+        sim = ", ".join(f"{j} {v:.4f} {unit(j, 'angle')}" for j, v in m.get("simulation_error", {}).items())
+        lines.append(f"  {model:18s} torque RMS: {tau}; simulation error: {sim or '-'}")
     spread = payload.get("info", {}).get("prediction_std")
     if spread and any(v > 0 for v in spread.values()):  # no effect found: nothing was fitted
-        std = ", ".join(f"{j} {v:.4f}" for j, v in spread.items())
-        lines.append(f"  {'':18s} calibrated prediction std from the parameters' uncertainty [N m]: {std}")
+        std = ", ".join(f"{j} {v:.4f} {unit(j, 'torque')}" for j, v in spread.items())
+        lines.append(f"  {'':18s} calibrated prediction std from the parameters' uncertainty: {std}")
     return "\n".join(lines)
 
 

@@ -52,6 +52,7 @@ def test_diagnose_writes_the_three_files(csv_files: list[Path], tmp_path: Path) 
     assert payload["findings"][0]["effect"] == "viscous_friction"
     assert payload["findings"][0]["joint"] == "swing"
     assert payload["split"]["by"] == "file"
+    assert payload["units"] == {"swing": {"torque": "N m", "angle": "rad"}}
     assert payload["extended"]["mjcf"] == "pendulum_calibrated.xml"
     assert set(payload["extended"]["simulation_error"]) == {"nominal", "extended"}
     assert payload["extended"]["torque_rms"]["swing"] < 0.5 * payload["baseline"]["torque_rms"]["swing"]
@@ -257,3 +258,26 @@ def test_a_file_whose_torque_is_stuck_at_zero_is_left_out_or_refused(csv_files: 
     payload = cli.run(_config([stuck, *csv_files], tmp_path / "with", "diagnose.recording=false"))
     assert payload["excluded"] == ["stuck.csv: torque of swing (100% of rows exactly 0)"]
     assert payload["findings"][0]["effect"] == "viscous_friction"
+
+
+def test_a_slide_joints_torques_and_errors_are_reported_in_its_units(tmp_path: Path) -> None:
+    """A cart on a rail (a slide) with a pendulum: the summary and the findings table print N and m for the
+    rail, N m and rad for the hinge."""
+    model = tmp_path / "cart.xml"
+    model.write_text(
+        '<mujoco model="cart"><worldbody><body name="cart"><joint name="rail" type="slide" axis="1 0 0"/>'
+        '<geom type="box" size="0.1 0.05 0.05" mass="1"/><body name="arm"><joint name="arm" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.5"/></body></body></worldbody>'
+        '<actuator><motor joint="rail"/><motor joint="arm"/></actuator></mujoco>'
+    )
+    units = cli._units(load_plant(model))
+    assert units == {"rail": {"torque": "N", "angle": "m"}, "arm": {"torque": "N m", "angle": "rad"}}
+    payload = {
+        "system": "cart",
+        "verdict": "no_discrepancy",
+        "findings": [],
+        "units": units,
+        "models": {"nominal": {"torque_rms": {"rail": 0.5, "arm": 0.02}, "simulation_error": {"rail": 0.01}}},
+    }
+    out = cli._summary(payload)
+    assert "rail 0.5000 N, arm 0.0200 N m" in out and "simulation error: rail 0.0100 m" in out
