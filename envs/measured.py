@@ -301,6 +301,8 @@ def _text_file(path: Path) -> _TextFile:
         raise DataError(f"{path}: is a folder, not a file; give the CSV file inside it")
     if not path.exists():
         raise DataError(f"{path}: no such file")
+    if not path.is_file():  # a named pipe or a device would block the reader, or never end
+        raise DataError(f"{path}: is not a regular file (a pipe, socket or device); give a CSV file")
     try:
         with path.open("rb") as f:
             head = f.read(_SNIFF_BYTES)
@@ -606,7 +608,18 @@ def _column_spec(key: str, value: Any, src: str) -> tuple[str, float, float]:
     if isinstance(value, str):
         return value, 1.0, 0.0
     if isinstance(value, Mapping) and "column" in value and set(value) <= {"column", "scale", "offset"}:
-        return str(value["column"]), float(value.get("scale", 1.0)), float(value.get("offset", 0.0))
+        numbers = []
+        for part, default in (("scale", 1.0), ("offset", 0.0)):
+            raw = value.get(part, default)
+            try:
+                number = float(raw) if not isinstance(raw, bool) else float("nan")
+            except (TypeError, ValueError):
+                number = float("nan")
+            if not np.isfinite(number) or (part == "scale" and number == 0):
+                need = "a finite nonzero number" if part == "scale" else "a finite number"
+                raise DataError(f"{src}: the {part} of {key}'s mapping must be {need}, got {raw!r}")
+            numbers.append(number)
+        return str(value["column"]), numbers[0], numbers[1]
     raise DataError(f"{src}: the mapping of {key} must be a column name or {{column, scale, offset}}, got {value!r}")
 
 

@@ -8,7 +8,9 @@
   a second run into the same folder is refused while the first holds it, and the lock goes with the process
   however it ends;
 - a folder that already holds outputs of a finished run (a user's `results.json`, `data.csv`, ...) is refused
-  unless `overwrite` is true;
+  unless `overwrite` is true, and one that holds another tool's results (`RESULTS_FILES`: a `sysid-run`'s
+  results.json in a `sysid-diagnose` folder, or the reverse) is refused always: the two would share one
+  `.hydra/` record of their config;
 - temporary files that a killed run left (`.<name>.*.tmp`) are removed.
 
 `RunFolder.retire()` removes the previous run's outputs (results file first) just before the new ones are
@@ -30,9 +32,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
-__all__ = ["LOCK_NAME", "RunFolder", "RunFolderError", "check_output_override", "claim", "terminate_as_exit"]
+__all__ = [
+    "LOCK_NAME",
+    "RESULTS_FILES",
+    "RunFolder",
+    "RunFolderError",
+    "check_output_override",
+    "claim",
+    "terminate_as_exit",
+]
 
 LOCK_NAME = ".sysid.lock"
+RESULTS_FILES = ("results.json", "diagnosis.json")  # what marks a finished run of each tool (sysid-run, -diagnose)
 
 
 class RunFolderError(ValueError):
@@ -95,12 +106,24 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
     if values and target.is_dir() and key == "hydra.run.dir=":
         if (target / LOCK_NAME).exists():
             os.close(_lock(target / LOCK_NAME, target))  # raises while another run holds it
-        present = [name for name in outputs if (target / name).exists()]
-        if present and "overwrite=true" not in argv:
-            raise RunFolderError(
-                f"run folder {target} already holds {', '.join(present)} of another run; "
-                "pass overwrite=true to replace them, or choose another folder"
-            )
+        _refuse_held(target, outputs, "overwrite=true" in argv)
+
+
+def _refuse_held(folder: Path, outputs: Sequence[str], overwrite: bool) -> None:
+    """Raises RunFolderError where `folder` holds another tool's results, or `outputs` of a finished run and not
+    `overwrite`."""
+    foreign = [name for name in RESULTS_FILES if name not in outputs and (folder / name).exists()]
+    if foreign:
+        raise RunFolderError(
+            f"run folder {folder} holds {foreign[0]}, the results of another tool's run: choose another folder "
+            "(overwrite=true does not apply to it)"
+        )
+    present = [name for name in outputs if (folder / name).exists()]
+    if present and not overwrite:
+        raise RunFolderError(
+            f"run folder {folder} already holds {', '.join(present)} of another run; "
+            "pass overwrite=true to replace them, or choose another folder"
+        )
 
 
 def _clean_stale_temporaries(folder: Path) -> list[str]:
@@ -132,12 +155,7 @@ def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool) -> Iterator[
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        present = [name for name in outputs if (folder / name).exists()]
-        if present and not overwrite:
-            raise RunFolderError(
-                f"run folder {folder} already holds {', '.join(present)} of another run; "
-                "pass overwrite=true to replace them, or choose another folder"
-            )
+        _refuse_held(folder, outputs, overwrite)
         _clean_stale_temporaries(folder)
         yield RunFolder(folder, tuple(outputs))
     finally:

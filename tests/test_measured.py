@@ -261,6 +261,22 @@ def test_a_scale_in_the_mapping_converts_degrees(tmp_path: Path, plant: Plant) -
     assert data.meta["columns"]["q_elbow"] == "0.0174532925 * elbow_deg"
 
 
+@pytest.mark.parametrize(
+    ("part", "value", "need"),
+    [
+        ("scale", "abc", "a finite nonzero number"),
+        ("scale", 0, "a finite nonzero number"),
+        ("offset", "x", "a finite number"),
+    ],
+)
+def test_a_mappings_scale_or_offset_that_is_not_a_number_is_named(
+    tmp_path: Path, plant: Plant, part: str, value: object, need: str
+) -> None:
+    mapping = {"time": {"column": "time", part: value}}
+    with pytest.raises(DataError, match=rf"the {part} of time's mapping must be {need}, got {value!r}"):
+        read_measured(write(tmp_path / "a.csv", table()), plant, columns=mapping)
+
+
 def test_angles_in_degrees_without_velocity_are_refused_by_the_joint_range(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     del cols["dq_shoulder"], cols["dq_elbow"]

@@ -174,6 +174,26 @@ def test_a_folder_holding_a_users_results_is_refused_without_overwrite(tmp_path:
     assert not (tmp_path / "failure.json").exists()  # the folder is not this run's: nothing added to it
 
 
+@pytest.mark.parametrize(("tool", "foreign"), [("harness.run", "diagnosis.json"), ("harness.diagnose", "results.json")])
+def test_a_folder_holding_the_other_tools_results_is_refused_even_with_overwrite(
+    tmp_path: Path, tool: str, foreign: str
+) -> None:
+    """A sysid-run into a sysid-diagnose folder (or the reverse) would put its outputs beside the other's and
+    replace the other's `.hydra/` record of its config."""
+    (tmp_path / foreign).write_text('{"theirs": true}')
+    (tmp_path / ".hydra").mkdir()
+    (tmp_path / ".hydra" / "config.yaml").write_text("theirs: true\n")
+    for extra in ((), ("overwrite=true",)):
+        proc = _cli("system=pendulum", f"hydra.run.dir={tmp_path}", *extra, module=tool)
+        _one_line_error(proc, f"holds {foreign}", "another tool")
+    assert (tmp_path / foreign).read_text() == '{"theirs": true}'
+    assert (tmp_path / ".hydra" / "config.yaml").read_text() == "theirs: true\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([foreign, ".hydra"])
+    own = ("data.csv", "results.json") if foreign == "diagnosis.json" else ("diagnosis.json",)
+    with pytest.raises(RunFolderError, match=f"holds {foreign}"), claim(tmp_path, outputs=own, overwrite=True):
+        pass
+
+
 def test_a_rerun_failing_on_a_full_disk_leaves_no_old_results_beside_new_data(
     finished_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -537,6 +557,13 @@ def test_wrong_joint_count_in_a_system_config_is_named() -> None:
 def test_a_directory_given_as_the_file_is_named(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="is a folder, not a file"):
         read_measured(tmp_path, load_plant("pendulum"))
+
+
+def test_a_named_pipe_given_as_the_file_is_refused_not_waited_on(tmp_path: Path) -> None:
+    fifo = tmp_path / "log.csv"
+    os.mkfifo(fifo)  # opening it to read would block until a writer came
+    with pytest.raises(DataError, match="log.csv: is not a regular file"):
+        read_measured(fifo, load_plant("pendulum"))
 
 
 def test_seed_abc_names_the_key(tmp_path: Path) -> None:
