@@ -13,9 +13,10 @@ Nothing questionable reaches a fit silently:
   neither a whole turn nor an isolated glitch, too many glitches, and too few rows;
 - repaired and reported in `dataset.meta["repairs"]` (a tuple of `Repair`): irregular start-up rows (dropped),
   encoder wrap-arounds (unwrapped by the whole turn), isolated glitches of at most `_GLITCH_MAX_RUN` samples
-  (re-interpolated from the good samples around them), and irregular or jittery sampling (interpolated onto a
-  uniform grid at the median step, which the derivative filters need). `repair=False` and `resample=False`
-  turn the last three into refusals.
+  (re-interpolated from the good samples around them), torque spikes far outside the column's own range
+  (`_torque_spikes`: interpolated from their neighbours), and irregular or jittery sampling (interpolated onto a
+  uniform grid at the median step, which the derivative filters need). `repair=False` turns the glitches and
+  spikes into refusals, `resample=False` the resampling.
 
 `identify.excitation_check.check_excitation` tells whether a regressor built from the data excites every
 parameter asked for; `envs.split.split_train_validation` holds data out by file or by a block of time.
@@ -52,6 +53,9 @@ _STARTUP_MAX_FRACTION = 0.05  # ... as long as they are a few rows; otherwise th
 _MAX_GAP_STEPS = 10.0  # a gap of more than 10 median steps is not interpolated across
 _GLITCH_MAX_RUN = 5  # a glitch is at most 5 consecutive samples off track
 _GLITCH_MAX_FRACTION = 0.01  # more glitch samples than 1 % of the rows: the sensor is not trusted
+_SPIKE_WINDOW = 4 * _GLITCH_MAX_RUN + 1  # running median [samples] a torque spike is measured from (a run of
+# up to twice the longest glitch moves it not at all)
+_SPIKE_FACTOR = 10.0  # a torque spike departs from it by 10 x the column's 99th-percentile excursion
 _MIN_JUMP = 0.02  # [rad] (or [m]) a step smaller than this is never called a jump
 _DEGREE = np.pi / 180.0
 _MIN_SAMPLE_RATE_HZ = 5.0  # slower sampling is a time column in other units (ms, us) or not joint data
@@ -76,7 +80,7 @@ class Repair:
     """One repair made while reading a file, recorded in `dataset.meta["repairs"]`.
 
     Attributes:
-        kind: `startup_trim`, `wrap`, `glitch`, `edge_glitch` or `resample`.
+        kind: `startup_trim`, `wrap`, `glitch`, `edge_glitch`, `torque_spike` or `resample`.
         column: the file's column (and ours) that was repaired, or `time`.
         rows: data rows of the file (0-based) where it applies: the first rows of each event.
         message: what was found and what was done, in words.
@@ -188,6 +192,15 @@ def read_measured(
     if head or tail:
         t, rows, arrays = t[head : len(t) - tail], rows[head : len(t) - tail], _cut(arrays, head, len(t) - tail)
 
+    for key in ("tau", "tau_cmd"):
+        torque = arrays[key]
+        if torque is None:
+            continue
+        for j, n in enumerate(names):
+            label = labels.get(f"{key}_{n}")
+            if label is not None:
+                torque[:, j], found = _torque_spikes(t, torque[:, j], label=label, rows=rows, src=src, repair=repair)
+                repairs += found
     logged = {k: arrays[k] for k in ("tau", "tau_cmd")}  # the torques as logged, before any resampling
     t, arrays, resampled = _regularise(t, arrays, rows, resample=resample, label=labels["time"], src=src)
     if resampled is not None:
@@ -895,6 +908,55 @@ def _repair_joint(
             )
         )
     return fixed, out, head, tail
+
+
+def _torque_spikes(
+    t: np.ndarray, x: np.ndarray, *, label: str, rows: np.ndarray, src: str, repair: bool
+) -> tuple[np.ndarray, list[Repair]]:
+    """Find the samples of one torque column far outside its own range, and interpolate or refuse them.
+
+    A sample is a spike where it departs from the running median of `_SPIKE_WINDOW` samples by more than
+    `_SPIKE_FACTOR` times the column's 99th-percentile excursion from its median (plus `_SPIKE_FACTOR` times its
+    sample-to-sample noise): a logging or transmission glitch, not a torque the joint could carry and release
+    within a sample. Runs of at most `_GLITCH_MAX_RUN` such samples are re-interpolated from their neighbours
+    (`repair`), or refused, as is a longer run or more than `_GLITCH_MAX_FRACTION` of the rows.
+    """
+    n = len(x)
+    if n < _SPIKE_WINDOW:
+        return x, []
+    centre = float(np.median(x))
+    reach = float(np.percentile(np.abs(x - centre), 99.0))
+    local = x - median_filter(x, size=_SPIKE_WINDOW, mode="nearest")
+    noise = 1.4826 * float(np.median(np.abs(local - np.median(local))))
+    bad = np.abs(local) > _SPIKE_FACTOR * (reach + noise) + 1e-12
+    if not bad.any():
+        return x, []
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    runs = list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1, strict=True))
+    k = int(runs[0][0])
+    where = f"row {rows[k]} (line {rows[k] + 2}, t = {t[k]:.6g} s)"
+    what = f"{label} is {x[k]:.4g} at {where}, far outside its own range ({centre:.4g} +- {reach:.3g} for 99 % of rows)"
+    longest = max(b - a + 1 for a, b in runs)
+    if not repair:
+        raise DataError(f"{src}: {what}; {len(runs)} such spike(s) in all. Not repaired (repair=False)")
+    if longest > _GLITCH_MAX_RUN or bad.sum() > max(1, _GLITCH_MAX_FRACTION * n):
+        raise DataError(
+            f"{src}: {what}; {int(bad.sum())} such samples in {len(runs)} run(s), the longest {longest}: more "
+            f"than isolated glitches of up to {_GLITCH_MAX_RUN} samples, so nothing was repaired"
+        )
+    good = ~bad
+    fixed = x.copy()
+    fixed[bad] = np.interp(t[bad], t[good], x[good])
+    listed = ", ".join(str(rows[a]) for a, _ in runs[:10])
+    return fixed, [
+        Repair(
+            "torque_spike",
+            label,
+            tuple(int(rows[a]) for a, _ in runs),
+            f"{label}: re-interpolated {len(runs)} spike(s) of {int(bad.sum())} sample(s) in all (up to "
+            f"{float(np.max(np.abs(x[bad] - fixed[bad]))):.4g} off its neighbours) at rows {listed}",
+        )
+    ]
 
 
 def _regularise(

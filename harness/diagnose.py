@@ -13,7 +13,7 @@ import re
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -188,7 +188,9 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
     _check_below_nyquist(cfg, datasets)
-    repairs = {d.source: [str(r) for r in d.meta.get("repairs", ())] for d in datasets}
+    repairs = {  # per file: what the reader repaired (the first 100 rows of each kind)
+        d.source: [{**asdict(r), "rows": list(r.rows[:100])} for r in d.meta.get("repairs", ())] for d in datasets
+    }
     ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}

@@ -260,6 +260,22 @@ def test_a_file_whose_torque_is_stuck_at_zero_is_left_out_or_refused(csv_files: 
     assert payload["findings"][0]["effect"] == "viscous_friction"
 
 
+def test_a_torque_spike_in_a_log_is_repaired_and_listed(csv_files: list[Path], tmp_path: Path) -> None:
+    """One sample of 1e30 N m (a logging glitch) broke the calibrated model's inertias with a traceback."""
+    spiked = tmp_path / "spiked.csv"
+    lines = csv_files[0].read_text().splitlines()
+    header = lines[0].split(",")
+    fields = lines[200].split(",")
+    fields[header.index("tau_swing")] = "1e30"
+    lines[200] = ",".join(fields)
+    spiked.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run"
+    payload = cli.run(_config([spiked, csv_files[1]], out))
+    (repair,) = [r for r in payload["repairs"][str(spiked)] if r["kind"] == "torque_spike"]
+    assert repair["rows"] == [199] and "tau_swing" in repair["column"]
+    assert payload["findings"][0]["effect"] == "viscous_friction"
+
+
 def test_a_slide_joints_torques_and_errors_are_reported_in_its_units(tmp_path: Path) -> None:
     """A cart on a rail (a slide) with a pendulum: the summary and the findings table print N and m for the
     rail, N m and rad for the hinge."""

@@ -325,6 +325,41 @@ def test_glitches_are_interpolated_with_a_report(tmp_path: Path, plant: Plant) -
     np.testing.assert_allclose(data.q[:, 1], clean, atol=1e-5)
 
 
+@pytest.mark.parametrize("size", [1e30, 1e6, 30.0])
+def test_a_torque_spike_is_interpolated_with_a_report(tmp_path: Path, plant: Plant, size: float) -> None:
+    """A logging glitch of one or two samples far outside the torque's own range (1 N m here): left in, a 1e30
+    broke the refit and a 1e6 gave a 447 N m RMS model and a clean verdict."""
+    cols = table()
+    cols["tau_shoulder"][300] = size
+    cols["tau_elbow"][700:702] = -size
+    data = read_measured(write(tmp_path / "spike.csv", cols), plant)
+    spikes = {r.column: r for r in data.meta["repairs"] if r.kind == "torque_spike"}
+    assert spikes["column 'tau_shoulder'"].rows == (300,) and spikes["column 'tau_elbow'"].rows == (700,)
+    np.testing.assert_allclose(data.tau[:, 0], table()["tau_shoulder"], atol=1e-4)
+    np.testing.assert_allclose(data.tau[:, 1], table()["tau_elbow"], atol=1e-4)
+
+
+def test_a_torque_spike_is_refused_with_its_row_without_repair(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["tau_elbow"][420] = 1e30
+    with pytest.raises(DataError, match=r"column 'tau_elbow' is 1e\+30 at row 420 \(line 422.*repair=False"):
+        read_measured(write(tmp_path / "spike.csv", cols), plant, repair=False)
+
+
+def test_a_torque_that_leaves_its_range_for_long_is_refused_not_interpolated(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["tau_shoulder"][500:509] = 50.0  # 9 samples: more than a glitch
+    with pytest.raises(DataError, match=r"column 'tau_shoulder' is 50 at row 500 .* the longest 9"):
+        read_measured(write(tmp_path / "run.csv", cols), plant)
+
+
+def test_torque_steps_and_a_clean_torque_are_not_spikes(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["tau_shoulder"] = np.where(np.arange(1000) < 500, -1.0, 1.0)  # a commanded step is not a glitch
+    data = read_measured(write(tmp_path / "step.csv", cols), plant)
+    assert not [r for r in data.meta["repairs"] if r.kind == "torque_spike"]
+
+
 def test_glitches_and_wraps_are_found_without_a_velocity_column(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     del cols["dq_shoulder"], cols["dq_elbow"]

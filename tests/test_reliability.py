@@ -562,7 +562,7 @@ def test_a_directory_given_as_the_file_is_named(tmp_path: Path) -> None:
 def test_a_named_pipe_given_as_the_file_is_refused_not_waited_on(tmp_path: Path) -> None:
     fifo = tmp_path / "log.csv"
     os.mkfifo(fifo)  # opening it to read would block until a writer came
-    with pytest.raises(DataError, match="log.csv: is not a regular file"):
+    with pytest.raises(DataError, match=r"log\.csv: is not a regular file"):
         read_measured(fifo, load_plant("pendulum"))
 
 
