@@ -147,8 +147,9 @@ def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
     """Run one Hydra job.
 
     A single run that fails writes `failure.json` (the error and its traceback) into its folder and logs it;
-    bad input, a bad config or an unusable disk (`USER_ERRORS`) prints one line and exits with status 2, any
-    other exception propagates with its traceback. SIGTERM ends the run through its clean-up code.
+    bad input, a bad config or an unusable disk (`USER_ERRORS`) prints one line and exits with status 2, Ctrl-C
+    prints one line and exits with status 130 (as a shell reports SIGINT), any other exception propagates with
+    its traceback. SIGTERM ends the run through its clean-up code.
 
     Inside a sweep (`-m`) each job runs in a child process of its own (see `harness.sweep`): a job that
     raises, or whose process is killed (SIGKILL, the out-of-memory killer), is recorded in `failure.json` and
@@ -173,4 +174,6 @@ def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
                 raise SystemExit(2) from None
             if isinstance(err, SystemExit | KeyboardInterrupt):
                 print(f"{hydra_cfg.job.name}: {message}", file=sys.stderr)
+            if isinstance(err, KeyboardInterrupt):  # the user's own stop: the line above, no traceback
+                raise SystemExit(130) from None
             raise

@@ -599,6 +599,25 @@ def test_sigterm_ends_a_run_through_its_clean_up(tmp_path: Path) -> None:
     assert not list(tmp_path.glob(".*.tmp")) and not (tmp_path / LOCK_NAME).exists()
 
 
+def test_ctrl_c_ends_a_run_with_one_line_and_status_130(tmp_path: Path) -> None:
+    """SIGINT (Ctrl-C) printed the line and then a KeyboardInterrupt traceback, and the process died by the
+    signal."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "harness.run", "system=wheel_pendulum", "record=none", f"hydra.run.dir={tmp_path}"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    pid = _wait_for_lock(tmp_path)
+    os.kill(pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Traceback" not in err and "interrupted (Ctrl-C)" in err.strip().splitlines()[-1], err[-2000:]
+    assert json.loads((tmp_path / "failure.json").read_text())["error"] == "interrupted (Ctrl-C)"
+    assert not (tmp_path / LOCK_NAME).exists()
+
+
 def test_sigterm_while_writing_removes_the_temporary_file(tmp_path: Path) -> None:
     def write(f) -> None:  # type: ignore[no-untyped-def]
         f.write("half")
