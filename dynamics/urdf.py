@@ -30,6 +30,13 @@ def _stripped(path: Path) -> ET.Element:
         raise ModelError(f"{path}: not a readable URDF: {err}") from err
     if root.tag != "robot":
         raise ModelError(f"{path}: not a URDF (its root element is <{root.tag}>, not <robot>)")
+    for joint in root.iter("joint"):
+        mimic = joint.find("mimic")
+        if mimic is not None:  # MuJoCo makes it an <equality>, which the refusal would name in a temporary MJCF
+            raise ModelError(
+                f"{path}: joint {joint.get('name')!r} has a <mimic> of joint {mimic.get('joint')!r}: coupled joints "
+                "are not supported (remove the <mimic> element to identify the joints independently)"
+            )
     for link in root.iter("link"):
         for tag in ("visual", "collision"):
             for element in list(link.findall(tag)):

@@ -19,6 +19,7 @@ import pinocchio as pin
 import pytest
 
 from dynamics.actuators import actuation_of
+from dynamics.errors import ModelError
 from dynamics.plant import load_plant
 from dynamics.sampling import random_states
 from dynamics.torque import joint_torque
@@ -197,3 +198,23 @@ def test_a_slide_joint_is_identified_and_reported_as_a_force(tmp_path: Path, cap
     assert results["max_abs_z"] <= 4.5
     out = capsys.readouterr().out
     assert "validation rail: torque RMS" in out and " N (sensor noise" in out and " N m (sensor noise" in out
+
+
+def test_a_urdf_mimic_joint_is_named_in_the_urdfs_terms(tmp_path: Path) -> None:
+    """MuJoCo turns a <mimic> into an <equality>; the refusal named that element and a temporary MJCF instead."""
+    urdf = tmp_path / "arm2_mimic.urdf"
+    link = (
+        '<link name="{0}"><inertial><mass value="1"/>'
+        '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+    )
+    urdf.write_text(
+        '<robot name="arm2">'
+        + "".join(link.format(n) for n in ("base", "l1", "l2"))
+        + '<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 1 0"/>'
+        '<limit lower="-1" upper="1" effort="5" velocity="2"/></joint>'
+        '<joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 -0.3"/>'
+        '<axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="5" velocity="2"/><mimic joint="j1"/></joint>'
+        "</robot>"
+    )
+    with pytest.raises(ModelError, match=r"arm2_mimic\.urdf: joint 'j2' has a <mimic> of joint 'j1'"):
+        load_plant(urdf)
