@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import os
 import re
 import shutil
@@ -115,7 +117,9 @@ def write_csv(dataset: Dataset, path: Path) -> None:
     if dataset.ddq is not None:
         columns += [(f"ddq_{n}", dataset.ddq[:, j]) for j, n in enumerate(names)]
     table = np.column_stack([c for _, c in columns])
-    header = ",".join(n for n, _ in columns)
+    buffer = io.StringIO()  # a joint name with a comma or a quote is quoted as CSV asks
+    csv.writer(buffer, lineterminator="").writerow([n for n, _ in columns])
+    header = buffer.getvalue()
     atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=header, comments="", fmt="%.10g"))
 
 

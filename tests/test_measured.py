@@ -662,3 +662,32 @@ def test_a_single_row_is_refused_before_any_warning(tmp_path: Path, plant: Plant
             read_measured(path, plant)
         with pytest.raises(DataError, match=r"one\.csv: too little data: 1 rows, at least 2 are needed"):
             read_measured(path, plant, min_samples=1)
+
+
+def test_a_joint_name_with_a_comma_or_quote_round_trips_through_the_csv(tmp_path: Path) -> None:
+    """The header was joined with bare commas: 'elbow joint,1' became two columns and the file could not be
+    read back."""
+    model = tmp_path / "weird.xml"
+    model.write_text(
+        '<mujoco><worldbody><body name="a"><joint name="elbow joint,1" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.5"/><body name="b" pos="0 0 -0.3">'
+        '<joint name=\'wrist "2"\' axis="0 1 0"/><geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.02" '
+        'mass="0.3"/></body></body></worldbody><actuator><motor joint="elbow joint,1"/>'
+        "<motor joint='wrist \"2\"'/></actuator></mujoco>"
+    )
+    weird = load_plant(model)
+    cols = table()
+    t = cols["time"]
+    q = np.column_stack([cols["q_shoulder"], cols["q_elbow"]])
+    data = Dataset(
+        t,
+        q,
+        np.column_stack([cols["tau_shoulder"], cols["tau_elbow"]]),
+        weird.joint_names,
+        np.ones(2, dtype=bool),
+        dq=np.column_stack([cols["dq_shoulder"], cols["dq_elbow"]]),
+    )
+    write_csv(data, tmp_path / "w.csv")
+    back = read_measured(tmp_path / "w.csv", weird)
+    np.testing.assert_allclose(back.q, q, atol=1e-9)
+    np.testing.assert_allclose(back.tau, data.tau, atol=1e-9)
