@@ -368,10 +368,55 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         if len(overrides) < len(argv):  # a sweep: its first job's overrides stand for all (same keys)
             overrides = _first_job(overrides)
         with initialize_config_dir(str(conf_dir), version_base=None):
+            added = [o for o in overrides if o.startswith("+") and not o.startswith("++")]
+            base = compose(config_name, overrides=[o for o in overrides if o not in added])
+            for o in added:
+                _check_added_key(base, o[1:].split("=", 1)[0])
             compose(config_name, overrides=overrides, return_hydra_config=True)
     except (HydraException, OmegaConfBaseException) as err:
-        lines = [ln.strip() for ln in str(err).splitlines() if ln.strip() and not ln.startswith("See https")]
+        lines = [
+            ln.strip()
+            for ln in str(err).splitlines()
+            if ln.strip() and not ln.startswith("See https") and not ln.startswith("To append to your config")
+        ]
         cause = err.__cause__
         if isinstance(cause, OmegaConfBaseException):
             lines.append(str(cause).splitlines()[0])
+        key = next((o.split("=", 1)[0].lstrip("+~") for o in overrides if f"'{o.split('=', 1)[0]}'" in str(err)), None)
+        if key is not None:
+            with initialize_config_dir(str(conf_dir), version_base=None):
+                hint = _close_key(compose(config_name), key)
+            if hint:
+                lines.append(f"did you mean {hint}?")
         raise ConfigError("; ".join(lines) or type(err).__name__) from None
+
+
+# mappings whose keys are the user's own names (a file's columns): a new key there is not a typo of a sibling
+_FREE_KEYS = ("data.columns",)
+
+
+def _close_key(cfg: DictConfig, key: str) -> str | None:
+    """The existing key `key` most likely meant: its first part that `cfg` lacks, replaced by the closest
+    sibling name (None where no sibling is close, or the part sits in a free mapping)."""
+    import difflib
+
+    parts = key.split(".")
+    node: Any = cfg
+    for i, part in enumerate(parts):
+        if not isinstance(node, DictConfig):
+            return None
+        if part not in node:
+            if ".".join(parts[:i]) in _FREE_KEYS:
+                return None
+            match = difflib.get_close_matches(part, [str(k) for k in node.keys()], n=1, cutoff=0.75)
+            return ".".join([*parts[:i], match[0], *parts[i + 1 :]]) if match else None
+        node = node[part]
+    return None
+
+
+def _check_added_key(cfg: DictConfig, key: str) -> None:
+    """A `+key=value` whose new key is a near-miss of an existing one (`+system.limts.velocity`, which Hydra's
+    own error suggests for a misspelled key) would be carried along and never read: refused, naming the key."""
+    hint = _close_key(cfg, key)
+    if hint:
+        raise ConfigError(f"+{key}: no such key is read; did you mean {hint}? (+ adds a new key and nothing reads it)")

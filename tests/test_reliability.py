@@ -424,6 +424,22 @@ def test_an_unknown_key_or_malformed_value_is_one_config_error() -> None:
     check_command_line(["-m", "system=pendulum,two_link", "excitation.harmonics=range(2,4)"], CONF, "config")
 
 
+def test_a_misspelled_key_is_answered_with_the_key_meant_not_with_a_plus() -> None:
+    """Hydra's own message for `system.limts.velocity=3` says to append it with `+`; the run then carried
+    `+system.limts.velocity=3` along and never read it."""
+    with pytest.raises(ConfigError, match=r"did you mean system\.limits\.velocity\?$") as err:
+        check_command_line(["system.limts.velocity=3"], CONF, "config")
+    assert "To append" not in str(err.value)
+    with pytest.raises(
+        ConfigError, match=r"\+system\.limts\.velocity: no such key is read; did you mean system\.limits"
+    ):
+        check_command_line(["+system.limts.velocity=3"], CONF, "config")
+    with pytest.raises(ConfigError, match=r"did you mean diagnose\.selection\.min_gain\?"):
+        check_command_line(["+diagnose.selection.min_gian=0.1"], CONF, "diagnose")
+    check_command_line(["+data.columns.tau_elbw=x"], CONF, "diagnose")  # a file's column names are free
+    check_command_line(["+system.notes=mine"], CONF, "config")  # a new key that misspells nothing is the user's
+
+
 def test_an_unknown_key_in_a_sweep_is_one_line_and_exit_2(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
     proc = _cli("-m", f"hydra.sweep.dir={sweep}", "system=pendulum", "seed=0,1", "foo=1")
