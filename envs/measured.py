@@ -27,6 +27,7 @@ from __future__ import annotations
 import codecs
 import csv
 import gzip
+import hashlib
 import json
 import re
 import warnings
@@ -246,7 +247,8 @@ def read_many(
 
     Raises:
         ValueError: no path given.
-        DataError: a file listed twice, or any file failing a check (one line per file).
+        DataError: a file listed twice (or two files of the same content), or any file failing a check (one line
+            per file).
     """
     items = [paths] if isinstance(paths, str | Path) else list(paths)
     if not items:
@@ -255,6 +257,15 @@ def read_many(
     twice = sorted({str(p) for p in seen if seen.count(p) > 1})
     if twice:
         raise DataError(f"file(s) listed more than once (a file cannot be both fitted and validated on): {twice}")
+    first: dict[str, Path] = {}
+    for p in seen:
+        digest = _digest(p)
+        if digest is not None and digest in first:
+            raise DataError(
+                f"{p} has the same content as {first[digest]} (a copy?): a file cannot be both fitted and validated on"
+            )
+        if digest is not None:
+            first[digest] = p
     datasets, errors = [], []
     for p in items:
         try:
@@ -305,6 +316,17 @@ class _TextFile:
             ) from None
         except _GZIP_ERRORS as err:
             raise _bad_gzip(self.path, err) from None
+
+
+def _digest(path: Path) -> str | None:
+    """SHA-256 of a regular file's bytes (None for anything else: `read_measured` names what it is)."""
+    if not path.is_file():
+        return None
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def _text_file(path: Path) -> _TextFile:

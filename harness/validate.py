@@ -111,7 +111,7 @@ def _per_joint(cfg: DictConfig, key: str, plant: Plant, *, low: float, low_open:
     if isinstance(raw, ListConfig) and len(values) != plant.nv:
         raise ConfigError(
             f"{key} has {len(values)} value(s) but {plant.name} has {plant.nv} joint(s) "
-            f"({', '.join(plant.joint_names)}): give one value per joint, or a single value for all"
+            f"({', '.join(plant.joint_names)}): give one value per joint, or a single number (0.02, not [0.02]) for all"
         )
     for i, v in enumerate(values):
         where = f"{key}[{i}] ({plant.joint_names[i]})" if isinstance(raw, ListConfig) else key

@@ -475,6 +475,10 @@ def test_read_many_reports_every_bad_file(tmp_path: Path, plant: Plant) -> None:
     assert "short.csv: too little data" in str(err.value) and "nan.csv: column 'tau_elbow', row 5" in str(err.value)
     with pytest.raises(DataError, match="listed more than once"):
         read_many([good, good], plant)
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(good.read_bytes())  # fitted on one and validated on the other, it validated on the fit's data
+    with pytest.raises(DataError, match=r"copy\.csv has the same content as .*good\.csv \(a copy\?\)"):
+        read_many([good, copy], plant)
 
 
 def test_dfki_logs_read_through_the_data_config(shared_data: Path, plant: Plant, monkeypatch) -> None:
