@@ -258,14 +258,15 @@ def read_many(
     if twice:
         raise DataError(f"file(s) listed more than once (a file cannot be both fitted and validated on): {twice}")
     first: dict[str, Path] = {}
-    for p in seen:
-        digest = _digest(p)
+    for path in seen:
+        digest = _digest(path)
         if digest is not None and digest in first:
             raise DataError(
-                f"{p} has the same content as {first[digest]} (a copy?): a file cannot be both fitted and validated on"
+                f"{path} has the same content as {first[digest]} (a copy?): a file cannot be both fitted and "
+                "validated on"
             )
         if digest is not None:
-            first[digest] = p
+            first[digest] = path
     datasets, errors = [], []
     for p in items:
         try:
