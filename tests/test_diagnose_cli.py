@@ -156,12 +156,11 @@ def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
     """A pendulum barely swinging about its rest position cannot tell its inertia from its mass moments."""
     plant = load_plant("pendulum")
     t = np.arange(0.0, 4.0, 0.002)
-    q = 1e-3 * np.sin(2 * np.pi * 0.5 * t)[:, None]
-    tau = 0.05 * q  # a reading (a torque stuck at exactly zero is refused before this check)
-    still = Dataset(time=t, q=q, tau=tau, joint_names=plant.joint_names, actuated=plant.actuated)
     paths = [tmp_path / "a.csv", tmp_path / "b.csv"]
-    for p in paths:
-        write_csv(still, p)
+    for k, p in enumerate(paths):  # two records of their own (two copies of one are refused as such)
+        q = 1e-3 * np.sin(2 * np.pi * 0.5 * t + k)[:, None]
+        tau = 0.05 * q  # a reading (a torque stuck at exactly zero is refused before this check)
+        write_csv(Dataset(time=t, q=q, tau=tau, joint_names=plant.joint_names, actuated=plant.actuated), p)
     out = tmp_path / "out"
     with pytest.raises(DataError, match=r"a\.csv.*excite"):
         cli.run(_config(paths, out))

@@ -451,7 +451,7 @@ def test_too_little_data_for_the_parameters_is_refused(plant: Plant) -> None:
 
 
 def test_split_by_file_and_by_time_block(tmp_path: Path, plant: Plant) -> None:
-    paths = [write(tmp_path / f"run{i}.csv", table()) for i in range(3)]
+    paths = [write(tmp_path / f"run{i}.csv", table(amplitude=(0.5 + 0.1 * i, 0.8))) for i in range(3)]
     datasets = read_many(paths, plant)
     split = split_train_validation(datasets)
     assert split.by == "file" and [Path(d.source).name for d in split.validation] == ["run2.csv"]
