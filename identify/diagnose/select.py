@@ -28,15 +28,19 @@ Where records are held out in turn, the rigid-body refit's columns that a consta
 partly stands in for on these data (less than `offset_independence` of their norm outside the span of the
 joints' constant columns, i.e. a constant accounts for more than a fifth of their energy at 0.9: at small angles
 a lateral first moment, g MX cos(q), is nearly a torque offset) are refitted only where that lowers the held-out
-error, both against the refit without them and against that refit beside a constant torque on each joint (the
-sensor's zero, which the nominal model does not constrain as it constrains a first moment: a moment that adds
-nothing to the constants on these data is told apart from them only by motion at other angles, and fitted to
-small angles it extrapolates as g MX cos(q) to a swing-up where a constant would not); where it does not, they
-stay at their nominal values, together, and the finding says so (`Step.held_nominal`). A sensor offset that
-changes between power-ups fits as such a first moment on the training records and transfers to none of the
-others; a real mass offset lowers the held-out error too, beside the constants, and is kept. Where every
+error, both against the refit without them and, by `min_gain`, against that refit beside a constant torque on
+each joint (the sensor's zero, which the nominal model does not constrain as it constrains a first moment: a
+moment that adds nothing to the constants on these data is told apart from them only by motion at other angles,
+and fitted to small angles it extrapolates as g MX cos(q) to a swing-up where a constant would not); where it
+does not, they stay at their nominal values, together, and the finding says so (`Step.held_nominal`). A sensor
+offset that changes between power-ups fits as such a first moment on the training records and transfers to none
+of the others; a real mass offset lowers the held-out error too, beside the constants, and is kept. Where every
 column the refit has left is offset-like there is nothing to compare them with: the candidate is then judged,
-as every candidate is, by its own held-out gain against no refit.
+as every candidate is, by its own held-out gain against no refit. Any other candidate with a column that a
+constant nearly spans (a joint stiffness k (q - q0) carries a constant; a joint offset's gravity derivative is
+nearly one at small angles), other than the torque offset itself, must also lower the held-out error by
+`min_gain` beside the joints' constants not yet chosen, or it is not admitted: on such data it is the sensor's
+zero under another name.
 
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
 counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
@@ -298,17 +302,18 @@ def _without_offset_like(
     score: Callable[[list[int]], tuple[float, np.ndarray]],
     mse: Callable[[np.ndarray], float],
     score_offsets: Callable[[list[int]], tuple[float, np.ndarray]],
+    min_gain: float,
 ) -> tuple[list[int], tuple[float, np.ndarray], list[int]]:
     """(kept columns, their `score`, the offset-like columns dropped): the kept columns in `offset_like` are
     dropped, together, where the fit without them has a held-out MSE (`mse` of the folds) no higher than with
-    them, alone or beside a constant torque per joint (`score_offsets` of some columns: them and the joints'
-    constants; see the module docstring)."""
+    them, or where beside a constant torque per joint (`score_offsets` of some columns: them and the joints'
+    constants) they do not lower it by `min_gain` (see the module docstring)."""
     with_all = score(kept)
     rest = [c for c in kept if c not in offset_like]
     if len(rest) in (0, len(kept)):
         return kept, with_all, []
     without = score(rest)
-    beyond_offsets = mse(score_offsets(rest)[1]) > mse(score_offsets(kept)[1])
+    beyond_offsets = (1 - min_gain) * mse(score_offsets(rest)[1]) > mse(score_offsets(kept)[1])
     if mse(without[1]) > mse(with_all[1]) and beyond_offsets:
         return kept, with_all, []
     return rest, without, [c for c in kept if c in offset_like]
@@ -359,6 +364,13 @@ def select_effects(
         if c.effect == "rigid_body" and kind == "files"
     }
     const = _joint_constants(n, train.actuated, train.used)  # what an offset-like column must beat
+    stands_for_offset = {  # other candidates with a column a constant joint torque nearly spans (module docstring)
+        c.key
+        for c in pool
+        if kind == "files"
+        and c.effect not in ("rigid_body", "torque_offset")
+        and _offset_like(built[c.key], sw, train.actuated, options.offset_independence, train.used)
+    }
     chosen: list[Step] = []
     X = np.zeros((n, nv, 0)) if nuisance is None else nuisance
     lo, hi = np.full(X.shape[2], -np.inf), np.full(X.shape[2], np.inf)
@@ -388,6 +400,8 @@ def select_effects(
         best: Scored | None = None
         admissible: list[Scored] = []
         scored.clear()
+        free = const[:, :, _span_free(basis, _flat(const, sw))]  # the joints' constants not chosen yet
+        Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
         for cand in cands:
             if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
                 continue
@@ -403,15 +417,19 @@ def select_effects(
 
             score = partial(_score_added, X, lo, hi, cols, cand, b, sw, folds, n_folds)
             dropped: list[int] = []
+            score_offsets = partial(_score_added, Xc, lo_c, hi_c, cols, cand, b, sw, folds, n_folds)
             if cand.key in offset_like:
-                free = const[:, :, _span_free(basis, _flat(const, sw))]  # the joints' constants not chosen yet
-                Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
-                score_offsets = partial(_score_added, Xc, lo_c, hi_c, cols, cand, b, sw, folds, n_folds)
                 kept, (rss_c, held_c), dropped = _without_offset_like(
-                    kept, offset_like[cand.key], score, lambda h: _fold_mse(h, folds, n_folds), score_offsets
+                    kept, offset_like[cand.key], score, lambda h: _fold_mse(h, folds, n_folds), score_offsets, min_gain
                 )
             else:
                 rss_c, held_c = score(kept)
+                if cand.key in stands_for_offset and free.shape[2]:
+                    alone = _scores(_flat(Xc, sw), b, folds, n_folds, lo_c, hi_c)[1]
+                    if _fold_mse(score_offsets(kept)[1], folds, n_folds) > (1 - min_gain) * _fold_mse(
+                        alone, folds, n_folds
+                    ):
+                        continue  # on these data it is a constant torque: the joints' constants do as well
             held_nominal = tuple(cand.parameter_names[c] for c in dropped)
             bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
             cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
