@@ -37,6 +37,7 @@ __all__ = [
     "gradient",
     "reduce_record",
     "reduction_factor",
+    "state_cutoff_hz",
 ]
 
 
@@ -293,6 +294,16 @@ DERIVATIVES: dict[str, Callable[..., States]] = {
     "simulator": _simulator,
     "spectral": _spectral,
 }
+
+
+def state_cutoff_hz(data: Dataset, method: str, **options: Any) -> float | None:
+    """The cut-off [Hz] above which `derive_states(data, method, **options)` leaves the states' noise unfiltered
+    no longer: the method's `cutoff_hz`, or the one it derives from the excitation; None for the exact states
+    (`simulator`, `given`)."""
+    if method in ("simulator", "given"):
+        return None
+    fs = 1.0 / float(np.median(np.diff(data.time)))
+    return _cutoff(data, fs, options.get("cutoff_hz"), float(options.get("cutoff_factor", 4.0)))
 
 
 def derive_states(data: Dataset, method: str, **options: Any) -> States:

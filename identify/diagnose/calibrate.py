@@ -336,7 +336,10 @@ def consistent_parameters(
         jac = params_and_jacobian(x)[1]
         return np.vstack([metric @ jac, mu * jac])
 
-    fit = optimize.least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=2000)
+    try:
+        fit = optimize.least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=2000)
+    except np.linalg.LinAlgError:  # LAPACK's SVD of a Jacobian spanning 1e-22 .. 1e6 can fail to converge
+        fit = optimize.least_squares(residual, x0, jac=jacobian, method="trf", tr_solver="lsmr", max_nfev=2000)
     fixed = params_and_jacobian(fit.x)[0]
     change = float(np.linalg.norm(metric @ (fixed - theta)) / max(float(np.linalg.norm(metric @ theta)), 1e-300))
     notes.append(

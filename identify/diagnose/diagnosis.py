@@ -23,7 +23,7 @@ from dynamics.plant import Plant, plant_from_xml
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
-from identify.derivatives import States, derive_states
+from identify.derivatives import States, derive_states, state_cutoff_hz
 from identify.diagnose.anomalies import Anomaly, describe_outside, find_anomalies, outside_training, still_joints
 from identify.diagnose.calibrate import (
     Extension,
@@ -248,6 +248,19 @@ class _Record:
     signals: Signals
 
 
+_STRUCTURE_HZ = 10.0  # the band a residual's structure is judged in, at most [Hz]: where model errors live
+
+
+def _structure_band(data: Dataset, method: str, options: dict[str, Any]) -> float:
+    """The band [Hz] a residual's whiteness is judged in: `_STRUCTURE_HZ`, or half the derivative filter's cut-off
+    where that is lower. Encoder noise differentiated twice grows as f^2 up to the cut-off and, through the
+    inertia, is torque noise the sensor's floor does not count (a UR5e's base joint on clean data: a residual 4
+    times its floor, peaking at 11-14 Hz above a 10 Hz cut-off); below half the cut-off it has a 32nd of that
+    power, while the motion's own harmonics, which the cut-off passes 4 times over, stay in the band."""
+    cutoff = state_cutoff_hz(data, method, **options)
+    return _STRUCTURE_HZ if cutoff is None else min(_STRUCTURE_HZ, 0.5 * cutoff)
+
+
 def _records(
     plant: Plant, datasets: Sequence[Dataset], method: str, options: dict[str, Any], band_hz: float | None
 ) -> list[_Record]:
@@ -444,9 +457,10 @@ def diagnose(
     # an unactuated joint has no torque sensor: its residual (the torque the model needs there, which must be
     # zero) is judged against the finest actuated joint's noise, as in the fit's weights
     sigma = 1.0 / np.sqrt(weights)
-    white_nom = whiteness(s_va.residual, sigma, fs)
+    band = _structure_band(va[0].data, derivatives, options)
+    white_nom = whiteness(s_va.residual, sigma, fs, band_hz=band)
     left = s_va.smooth(s_va.tau - preds["calibrated"])
-    white_cal = whiteness(left, sigma, fs)
+    white_cal = whiteness(left, sigma, fs, band_hz=band)
     verdict, reason = _with_drift(*_verdict(findings, s_va, preds, weights, white_nom, white_cal), drift)
     remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
     return Diagnosis(
