@@ -185,3 +185,12 @@ def test_a_record_whose_residual_is_constant_still_counts() -> None:
     with np.errstate(all="raise"):
         found = changing_offsets(e, record, ("a",), np.array([True]), np.array([0.01]), ["r0", "r1", "r2"])
     assert [f["joint"] for f in found] == ["a"]
+
+
+def test_a_separation_without_a_rule_of_thumb_names_both_targets() -> None:
+    """Two payloads on two bodies read 'the columns of payload and payload' before."""
+    from identify.diagnose.diagnosis import _separation
+
+    text = _separation("payload", "payload", "payload forearm_link", "payload upper_arm_link")
+    assert "payload forearm_link and payload upper_arm_link differ" in text
+    assert "swing past horizontal" in _separation("torque_offset", "rigid_body")

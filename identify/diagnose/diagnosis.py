@@ -609,8 +609,9 @@ def _verdict(
     return "explained", f"held-out error {before:.4g} -> {after:.4g} (weighted MSE); the residual left is white"
 
 
-def _separation(a: str, b: str) -> str:
-    """What motion would tell effect a from effect b."""
+def _separation(a: str, b: str, a_name: str = "", b_name: str = "") -> str:
+    """What motion would tell effect a from effect b (`a_name`, `b_name`: how to name them, with their joint or
+    body, where no rule of thumb applies)."""
     pair = {a, b}
     body = {"rigid_body", "payload"}
     if "armature" in pair and pair & body:
@@ -633,7 +634,10 @@ def _separation(a: str, b: str) -> str:
         return "faster excitation: a delay's torque grows with frequency (as d tau/dt), the alternative's does not"
     if pair & {"coulomb_friction", "smooth_coulomb_friction", "stribeck_friction", "backlash", "load_friction"}:
         return "dwell at low speed and reverse slowly, at several loads: friction shapes differ near zero speed"
-    return f"a motion on which the columns of {a} and {b} differ (they are nearly parallel on these data)"
+    return (
+        f"a motion on which the columns of {a_name or a} and {b_name or b} differ (they are nearly parallel on "
+        "these data)"
+    )
 
 
 def _with_confounding(
@@ -688,7 +692,13 @@ def _with_confounding(
                 if (a["effect"], a["target"]) not in seen:
                     seen.add((a["effect"], a["target"]))
                     unique.append(a)
-            sep = "; ".join(dict.fromkeys(_separation(st.candidate.effect, a["effect"]) for a in unique))
+            here = f"{st.candidate.effect} {st.candidate.target}".strip()
+            sep = "; ".join(
+                dict.fromkeys(
+                    _separation(st.candidate.effect, a["effect"], here, f"{a['effect']} {a['target']}".strip())
+                    for a in unique
+                )
+            )
             f = dataclasses.replace(f, confounded_with=unique, separate_by=sep)
         out.append(f)
     return out
