@@ -194,3 +194,19 @@ def test_a_separation_without_a_rule_of_thumb_names_both_targets() -> None:
     text = _separation("payload", "payload", "payload forearm_link", "payload upper_arm_link")
     assert "payload forearm_link and payload upper_arm_link differ" in text
     assert "swing past horizontal" in _separation("torque_offset", "rigid_body")
+
+
+def test_a_finding_whose_joint_fit_z_is_below_the_floor_is_named_in_the_notes() -> None:
+    """The selection judges each effect beside the ones chosen before it; the report fits them all together,
+    where one may come out at |z| < 2.5 (a payload at 0.265 +- 0.107 kg on a UR5e): that is said, not hidden."""
+    from identify.diagnose.diagnosis import Finding, _weak_findings
+
+    def finding(effect: str, value: float, std: float, at_bound: str | None = None) -> Finding:
+        return Finding(effect, "elbow", value, std, "N m", "joint damping", {}, {}, at_bound=at_bound)
+
+    weak = finding("payload", 0.265, 0.107)
+    strong = finding("viscous_friction", 0.02, 0.001)
+    gain = finding("torque_gain", 1.05, 0.01)  # |1.05 - 1| / 0.01 = 5
+    bounded = finding("armature", 0.0, float("nan"), "lower")
+    ((f, z),) = _weak_findings([weak, strong, gain, bounded], 2.5)
+    assert f is weak and z == pytest.approx(2.477, abs=1e-3)

@@ -510,6 +510,12 @@ def diagnose(
             "record as a nuisance)"
             for d in drift
         ]
+        + [
+            f"{f.name}: |value - null| / std is {z:.2f} in the joint fit of every finding, below "
+            f"{selection.min_z_records:g}: the held-out gain named it, its size is not well determined beside the "
+            "others"
+            for f, z in _weak_findings(findings, selection.min_z_records)
+        ]
         + [describe_outside(d) for d in outside]
         + [
             f"{Path(d['source']).name}: {d['joint']}'s torque left out of the fit there (the joint never moves; "
@@ -779,6 +785,19 @@ def _without(s: Signals, unfitted: np.ndarray) -> Signals:
 
 
 _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle within a few)
+
+
+def _weak_findings(findings: list[Finding], min_z: float) -> list[tuple[Finding, float]]:
+    """The findings (not the rigid body, not one at its bound) whose reported |value - null| / std is below
+    `min_z`: the selection judged each beside the findings before it, the report fits them all together."""
+    out = []
+    for f in findings:
+        null = 1.0 if f.effect == "torque_gain" else 0.0
+        if f.effect != "rigid_body" and f.at_bound is None and np.isfinite(f.std) and f.std > 0:
+            z = abs(f.value - null) / f.std
+            if z < min_z:
+                out.append((f, float(z)))
+    return out
 
 
 def _final_fit(
