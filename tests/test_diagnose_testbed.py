@@ -66,6 +66,7 @@ def test_coulomb_friction_values_cover_the_truth_without_the_sticking_rows() -> 
             _, dg = diagnose_case(system, [truth], seed=seed)
             f = next(f for f in dg.findings if f.target == truth.joint and "coulomb" in f.effect)
             zs.append((f.value - truth.size) / f.std)
+            assert 0.0 < dg.info["left_out_sticking"][truth.joint] < 0.3  # the slow rows, and only those
     assert max(abs(z) for z in zs) < 2.5, zs
     assert abs(float(np.mean(zs))) < 1.0, zs
 

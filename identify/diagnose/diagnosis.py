@@ -381,7 +381,13 @@ def diagnose(
     )
     m = nuisance.shape[2]
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
-    X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, _sliding_rows(s_tr, steps, names))
+    sliding = _sliding_rows(s_tr, steps, names)
+    X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding)
+    sticking = {  # per joint: the share of its training torques the final fit left out as sticking
+        names[j]: float(np.mean(~sliding[:, j]))
+        for j in range(plant.nv)
+        if sliding is not None and not sliding[:, j].all()
+    }
     sources = [r.data.source for r in tr]
     # every anomaly makes a record's mean meaningless, and so does a torque left out of the fit
     unusable = frozenset((a.source, a.joint) for a in anomalies) | {(d["source"], d["joint"]) for d in left_out}
@@ -493,6 +499,7 @@ def diagnose(
             "changing_offsets": drift,
             "prediction_std": _per_joint(names, spread),
             "left_out_of_fit": left_out,
+            "left_out_sticking": sticking,
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
