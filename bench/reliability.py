@@ -137,7 +137,7 @@ def _has_repair(kind: str) -> Callable[[Path, subprocess.CompletedProcess], str 
             return "no diagnosis.json"
         payload = json.loads(files[0].read_text())
         repairs = payload.get("repairs", {})
-        if not any(kind in r for rs in repairs.values() for r in rs):
+        if not any(r.get("kind") == kind for rs in repairs.values() for r in rs):
             return f"no {kind} repair reported: {repairs}"
         if payload.get("verdict") != "no_discrepancy":  # the data are the nominal model's own simulation
             return f"verdict {payload.get('verdict')} on repaired data: {[f['effect'] for f in payload['findings']]}"

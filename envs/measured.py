@@ -257,16 +257,6 @@ def read_many(
     twice = sorted({str(p) for p in seen if seen.count(p) > 1})
     if twice:
         raise DataError(f"file(s) listed more than once (a file cannot be both fitted and validated on): {twice}")
-    first: dict[str, Path] = {}
-    for path in seen:
-        digest = _digest(path)
-        if digest is not None and digest in first:
-            raise DataError(
-                f"{path} has the same content as {first[digest]} (a copy?): a file cannot be both fitted and "
-                "validated on"
-            )
-        if digest is not None:
-            first[digest] = path
     datasets, errors = [], []
     for p in items:
         try:
@@ -285,6 +275,16 @@ def read_many(
             errors.append(str(err))
     if errors:
         raise DataError("\n".join(errors))
+    first: dict[str, Path] = {}  # among files that read: two empty ones are refused for what they are
+    for path in seen:
+        digest = _digest(path)
+        if digest is not None and digest in first:
+            raise DataError(
+                f"{path} has the same content as {first[digest]} (a copy?): a file cannot be both fitted and "
+                "validated on"
+            )
+        if digest is not None:
+            first[digest] = path
     return datasets
 
 
@@ -324,9 +324,12 @@ def _digest(path: Path) -> str | None:
     if not path.is_file():
         return None
     h = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
+    try:
+        with path.open("rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None  # read_measured has said what is wrong with it
     return h.hexdigest()
 
 
@@ -951,7 +954,9 @@ def _torque_spikes(
     reach = float(np.percentile(np.abs(x - centre), 99.0))
     local = x - median_filter(x, size=_SPIKE_WINDOW, mode="nearest")
     noise = 1.4826 * float(np.median(np.abs(local - np.median(local))))
-    bad = np.abs(local) > _SPIKE_FACTOR * (reach + noise) + 1e-12
+    steps = np.abs(np.diff(x))
+    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0  # its quantum, or its pulses' height
+    bad = np.abs(local) > _SPIKE_FACTOR * max(reach + noise, step) + 1e-12
     if not bad.any():
         return x, []
     edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))

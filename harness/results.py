@@ -17,7 +17,7 @@ import numpy as np
 from omegaconf.errors import OmegaConfBaseException
 
 from envs.dataset import atomic_write
-from harness.rundir import terminate_as_exit
+from harness.rundir import RESULTS_FILES, terminate_as_exit
 
 __all__ = [
     "USER_ERRORS",
@@ -95,8 +95,6 @@ USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, OmegaConfBa
 """Errors that come from the input or the machine (a config value, a file, the disk), not from a bug: one line
 on stderr and exit status 2, no traceback. Any other exception is a bug and keeps its traceback."""
 
-_RESULT_FILES = ("results.json", "diagnosis.json")
-
 
 def one_line(err: BaseException) -> str:
     """The error as one line: its message's lines joined (a multi-file data error lists each file)."""
@@ -134,7 +132,7 @@ def record_failure(out: Path, err: BaseException, *, with_traceback: bool = True
 
     message = describe_failure(err)
     _log_to_files(message)
-    if isinstance(err, RunFolderError) or any((out / name).exists() for name in _RESULT_FILES):
+    if isinstance(err, RunFolderError) or any((out / name).exists() for name in RESULTS_FILES):
         return message
     payload = {"error": message, "traceback": traceback.format_exc() if with_traceback else None}
     with contextlib.suppress(OSError):  # the folder may be the very thing that failed

@@ -27,9 +27,9 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-__all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
+from harness.rundir import RESULTS_FILES
 
-_RESULT_FILES = ("results.json", "diagnosis.json")
+__all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
 
 
 def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
@@ -83,7 +83,7 @@ def run_isolated(work: Callable[[Any], Any], cfg: Any, out: Path, *, label: str)
             out.mkdir(parents=True, exist_ok=True)
             write_json(out / "failure.json", {"error": message, "signal": name, "traceback": None})
         print(f"{label} failed: {message}", file=sys.stderr)
-    elif code and not (out / "failure.json").exists() and not any((out / n).exists() for n in _RESULT_FILES):
+    elif code and not (out / "failure.json").exists() and not any((out / n).exists() for n in RESULTS_FILES):
         with contextlib.suppress(OSError):
             write_json(out / "failure.json", {"error": f"the job's process exited with status {code}"})
 
@@ -92,7 +92,7 @@ def failed_jobs(sweep: Path) -> list[tuple[str, str]]:
     """(job folder, error) for every job of `sweep` (a folder with `.hydra/`) that has no results file."""
     out = []
     for job in sorted(p.parent for p in Path(sweep).rglob(".hydra")):
-        if any((job / n).is_file() for n in _RESULT_FILES):
+        if any((job / n).is_file() for n in RESULTS_FILES):
             continue
         error = "no output and no failure record"
         with contextlib.suppress(OSError, ValueError, KeyError, TypeError):

@@ -368,11 +368,15 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         if len(overrides) < len(argv):  # a sweep: its first job's overrides stand for all (same keys)
             overrides = _first_job(overrides)
         with initialize_config_dir(str(conf_dir), version_base=None):
-            added = [o for o in overrides if o.startswith("+") and not o.startswith("++")]
-            base = compose(config_name, overrides=[o for o in overrides if o not in added])
-            for o in added:
-                _check_added_key(base, o[1:].split("=", 1)[0])
             compose(config_name, overrides=overrides, return_hydra_config=True)
+            added = [o for o in overrides if o.startswith("+") and not o.startswith("++")]
+            if added:  # each new key against the config the other overrides make (or the groups alone)
+                try:
+                    base = compose(config_name, overrides=[o for o in overrides if o not in added])
+                except (HydraException, OmegaConfBaseException):
+                    base = compose(config_name, overrides=_group_choices(overrides))
+                for o in added:
+                    _check_added_key(base, o[1:].split("=", 1)[0])
     except (HydraException, OmegaConfBaseException) as err:
         lines = [
             ln.strip()
@@ -385,10 +389,15 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         key = next((o.split("=", 1)[0].lstrip("+~") for o in overrides if f"'{o.split('=', 1)[0]}'" in str(err)), None)
         if key is not None:
             with initialize_config_dir(str(conf_dir), version_base=None):
-                hint = _close_key(compose(config_name), key)
+                hint = _close_key(compose(config_name, overrides=_group_choices(overrides)), key)
             if hint:
                 lines.append(f"did you mean {hint}?")
         raise ConfigError("; ".join(lines) or type(err).__name__) from None
+
+
+def _group_choices(overrides: list[str]) -> list[str]:
+    """The overrides that choose a config group's option (`data=dfki_double_pendulum`): the keys a hint can name."""
+    return [o for o in overrides if "=" in o and o[0] not in "+~" and "." not in o.split("=", 1)[0]]
 
 
 # mappings whose keys are the user's own names (a file's columns): a new key there is not a typo of a sibling

@@ -297,11 +297,15 @@ DERIVATIVES: dict[str, Callable[..., States]] = {
 
 
 def state_cutoff_hz(data: Dataset, method: str, **options: Any) -> float | None:
-    """The cut-off [Hz] above which `derive_states(data, method, **options)` leaves the states' noise unfiltered
-    no longer: the method's `cutoff_hz`, or the one it derives from the excitation; None for the exact states
-    (`simulator`, `given`)."""
-    if method in ("simulator", "given"):
+    """The cut-off [Hz] of the filter the states of `derive_states(data, method, **options)` went through: the
+    method's `cutoff_hz`, or the one it derives from the excitation; for `given` states, the cut-off they were
+    derived with where `reduce_record` says so (`meta["reduced"]`); None for exact states."""
+    if method == "simulator":
         return None
+    if method == "given":
+        derived = data.meta.get("reduced", {}).get("derivatives", {})
+        cutoff = derived.get("cutoff_hz")
+        return float(cutoff) if cutoff is not None and derived.get("method") not in ("simulator", "given") else None
     fs = 1.0 / float(np.median(np.diff(data.time)))
     return _cutoff(data, fs, options.get("cutoff_hz"), float(options.get("cutoff_factor", 4.0)))
 

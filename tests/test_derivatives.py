@@ -166,3 +166,17 @@ def test_blockwise_gradient_is_numpys_bit_for_bit(n: int, monkeypatch: pytest.Mo
     f = rng.normal(size=(n, 3))
     for column in (f, f[:, 0], f[:, 1:2]):
         np.testing.assert_array_equal(gradient(column, x), np.gradient(column, x, axis=0))
+
+
+def test_the_cut_off_of_reduced_states_is_the_one_they_were_derived_with() -> None:
+    """A long log is reduced with its states derived at the cut-off and then diagnosed as `given` states: the
+    whiteness band follows that cut-off, as it does for the same log unreduced."""
+    from identify.derivatives import reduce_record, state_cutoff_hz
+
+    t = np.arange(0.0, 20.0, 0.002)
+    q = np.column_stack([np.sin(2 * np.pi * 0.5 * t)])
+    data = Dataset(time=t, q=q, tau=np.zeros_like(q), joint_names=("j",), actuated=np.array([True]))
+    assert state_cutoff_hz(data, "butterworth", cutoff_hz=10.0) == 10.0
+    reduced = reduce_record(data, "butterworth", 2, cutoff_hz=10.0)
+    assert state_cutoff_hz(reduced, "given") == 10.0
+    assert state_cutoff_hz(data, "given") is None and state_cutoff_hz(data, "simulator") is None

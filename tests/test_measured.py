@@ -695,3 +695,29 @@ def test_a_joint_name_with_a_comma_or_quote_round_trips_through_the_csv(tmp_path
     back = read_measured(tmp_path / "w.csv", weird)
     np.testing.assert_allclose(back.q, q, atol=1e-9)
     np.testing.assert_allclose(back.tau, data.tau, atol=1e-9)
+
+
+def test_pulses_and_quantum_flicker_in_a_torque_are_not_spikes(tmp_path: Path, plant: Plant) -> None:
+    """A torque zero for most of the file with short pulses (a command of kicks), or a quantised constant that
+    flickers by one step: against the 99th-percentile excursion alone (zero) every pulse sample was a spike and
+    was flattened. The spike must also stand out from the column's own steps."""
+    cols = table()
+    pulses = np.zeros(1000)
+    for start in range(50, 1000, 100):
+        pulses[start : start + 3] = 0.5
+    cols["tau_shoulder"] = pulses
+    flicker = np.full(1000, 0.2)
+    flicker[::150] += 0.00586  # one quantum, in 0.7 % of the rows
+    cols["tau_elbow"] = flicker
+    data = read_measured(write(tmp_path / "pulses.csv", cols), plant)
+    assert not [r for r in data.meta["repairs"] if r.kind == "torque_spike"]
+    np.testing.assert_array_equal(data.tau[:, 0], pulses)
+
+
+def test_two_header_only_files_are_refused_for_what_they_are_not_as_copies(tmp_path: Path, plant: Plant) -> None:
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    for p in (a, b):
+        p.write_text("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n")
+    with pytest.raises(DataError) as err:
+        read_many([a, b], plant)
+    assert "a copy" not in str(err.value) and "a.csv" in str(err.value) and "b.csv" in str(err.value)

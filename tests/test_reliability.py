@@ -438,6 +438,9 @@ def test_a_misspelled_key_is_answered_with_the_key_meant_not_with_a_plus() -> No
         check_command_line(["+diagnose.selection.min_gian=0.1"], CONF, "diagnose")
     check_command_line(["+data.columns.tau_elbw=x"], CONF, "diagnose")  # a file's column names are free
     check_command_line(["+system.notes=mine"], CONF, "config")  # a new key that misspells nothing is the user's
+    check_command_line(["+diagnose.mine={a:1}", "diagnose.mine.a=2"], CONF, "diagnose")  # a key added, then set
+    with pytest.raises(ConfigError, match=r"did you mean data\.band_hz\?"):  # a key of the data config chosen
+        check_command_line(["data=dfki_double_pendulum", "data.band_hzz=3"], CONF, "diagnose")
 
 
 def test_an_unknown_key_in_a_sweep_is_one_line_and_exit_2(tmp_path: Path) -> None:

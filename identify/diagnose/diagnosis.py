@@ -381,12 +381,14 @@ def diagnose(
     )
     m = nuisance.shape[2]
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
+    z_floor = selection.min_z_records if len(tr) > 1 else selection.min_z  # the most lenient the selection asks
     sliding = _sliding_rows(s_tr, steps, names)
     X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding)
-    sticking = {  # per joint: the share of its training torques the final fit left out as sticking
-        names[j]: float(np.mean(~sliding[:, j]))
+    fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
+    sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
+        names[j]: float(np.mean(~sliding[fitted_rows[:, j], j]))
         for j in range(plant.nv)
-        if sliding is not None and not sliding[:, j].all()
+        if sliding is not None and fitted_rows[:, j].any() and not sliding[fitted_rows[:, j], j].all()
     }
     sources = [r.data.source for r in tr]
     # every anomaly makes a record's mean meaningless, and so does a torque left out of the fit
@@ -519,9 +521,9 @@ def diagnose(
         ]
         + [
             f"{f.name}: |value - null| / std is {z:.2f} in the joint fit of every finding, below "
-            f"{selection.min_z_records:g}: the held-out gain named it, its size is not well determined beside the "
+            f"{z_floor:g}: the held-out gain named it, its size is not well determined beside the "
             "others"
-            for f, z in _weak_findings(findings, selection.min_z_records)
+            for f, z in _weak_findings(findings, z_floor)
         ]
         + [describe_outside(d) for d in outside]
         + [

@@ -28,7 +28,7 @@ Where records are held out in turn, the rigid-body refit's columns that a consta
 partly stands in for on these data (less than `offset_independence` of their norm outside the span of the
 joints' constant columns, i.e. a constant accounts for more than a fifth of their energy at 0.9: at small angles
 a lateral first moment, g MX cos(q), is nearly a torque offset) are refitted only where that lowers the held-out
-error, both against the refit without them and, by `min_gain`, against that refit beside a constant torque on
+error, both against the refit without them and, by `min_gain_records`, against that refit beside a constant torque on
 each joint (the sensor's zero, which the nominal model does not constrain as it constrains a first moment: a
 moment that adds nothing to the constants on these data is told apart from them only by motion at other angles,
 and fitted to small angles it extrapolates as g MX cos(q) to a swing-up where a constant would not); where it
@@ -307,7 +307,7 @@ def _without_offset_like(
     """(kept columns, their `score`, the offset-like columns dropped): the kept columns in `offset_like` are
     dropped, together, where the fit without them has a held-out MSE (`mse` of the folds) no higher than with
     them, or where beside a constant torque per joint (`score_offsets` of some columns: them and the joints'
-    constants) they do not lower it by `min_gain` (see the module docstring)."""
+    constants) they do not lower it by `min_gain_records` (see the module docstring)."""
     with_all = score(kept)
     rest = [c for c in kept if c not in offset_like]
     if len(rest) in (0, len(kept)):
@@ -424,6 +424,7 @@ def select_effects(
                 )
             else:
                 rss_c, held_c = score(kept)
+                scored[cand.key] = _fold_mse(held_c, folds, n_folds)  # a shape judged, whatever follows
                 if cand.key in stands_for_offset and free.shape[2]:
                     alone = _scores(_flat(Xc, sw), b, folds, n_folds, lo_c, hi_c)[1]
                     if _fold_mse(score_offsets(kept)[1], folds, n_folds) > (1 - min_gain) * _fold_mse(
