@@ -374,7 +374,7 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
                 try:
                     base = compose(config_name, overrides=[o for o in overrides if o not in added])
                 except (HydraException, OmegaConfBaseException):
-                    base = compose(config_name, overrides=_group_choices(overrides))
+                    base = compose(config_name, overrides=_group_choices(overrides, conf_dir))
                 for o in added:
                     _check_added_key(base, o[1:].split("=", 1)[0])
     except (HydraException, OmegaConfBaseException) as err:
@@ -388,16 +388,20 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
             lines.append(str(cause).splitlines()[0])
         key = next((o.split("=", 1)[0].lstrip("+~") for o in overrides if f"'{o.split('=', 1)[0]}'" in str(err)), None)
         if key is not None:
-            with initialize_config_dir(str(conf_dir), version_base=None):
-                hint = _close_key(compose(config_name, overrides=_group_choices(overrides)), key)
+            try:
+                with initialize_config_dir(str(conf_dir), version_base=None):
+                    hint = _close_key(compose(config_name, overrides=_group_choices(overrides, conf_dir)), key)
+            except (HydraException, OmegaConfBaseException):  # a group choice that is itself wrong: no hint
+                hint = None
             if hint:
                 lines.append(f"did you mean {hint}?")
         raise ConfigError("; ".join(lines) or type(err).__name__) from None
 
 
-def _group_choices(overrides: list[str]) -> list[str]:
-    """The overrides that choose a config group's option (`data=dfki_double_pendulum`): the keys a hint can name."""
-    return [o for o in overrides if "=" in o and o[0] not in "+~" and "." not in o.split("=", 1)[0]]
+def _group_choices(overrides: list[str], conf_dir: Path) -> list[str]:
+    """The overrides that choose a config group's option (`data=dfki_double_pendulum`, a folder of `conf_dir`):
+    the keys a hint can name."""
+    return [o for o in overrides if "=" in o and o[0] not in "+~" and (conf_dir / o.split("=", 1)[0]).is_dir()]
 
 
 # mappings whose keys are the user's own names (a file's columns): a new key there is not a typo of a sibling
