@@ -126,7 +126,7 @@ def test_effect_outside_the_vocabulary_is_unexplained_structure_with_its_signatu
     assert dg.verdict == "unexplained_structure", (dg.verdict_reason, [f.name for f in dg.findings])
     sig = dg.remaining[truth.joint]
     assert sig["spectral_peaks"] and set(sig["correlation"]) == {"q", "dq", "sign_dq", "ddq"}
-    assert {"cycles_per_rad", "period_rad", "amplitude", "share"} <= set(sig["position_periodic"])
+    assert {"cycles_per_revolution", "period_rad", "amplitude", "share"} <= set(sig["position_periodic"])
     assert dg.to_dict()["remaining"] == dg.remaining
 
 

@@ -75,6 +75,7 @@ __all__ = [
     "Signals",
     "candidates",
     "cogging_harmonic",
+    "position_harmonic",
     "rotor_chain",
     "signals",
     "stack_signals",
@@ -483,20 +484,20 @@ def _stiffness_value(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[
     return 1.0 / c, sd / c**2
 
 
-def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
-    """The position-periodic torque that best explains joint j's residual row: (harmonic n [cycles per
-    revolution], amplitude), or None where the joint's motion spans no period of any.
+def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, float] | None:
+    """The position-periodic torque a sin(n q_j) + b cos(n q_j) that best explains `r` (N,): (harmonic n
+    [cycles per revolution], amplitude [N m], the share of r's energy the fit explains), or None where
+    joint j's motion spans no period of any harmonic scanned.
 
     Scans the harmonics of `COGGING_HARMONICS` whose period 2 pi / n the joint's range of motion covers
     `MIN_COGGING_PERIODS` times (a longer period is a smooth function of q on these data, as gravity, an
-    offset or a spring are, and it would extrapolate as a sinusoid to angles the data never reached): the
-    residual in the analysis band is fitted by a sin(n q_j) + b cos(n q_j) (in the same band, with a
-    constant); the n explaining the most variance wins.
+    offset or a spring are, and it would extrapolate as a sinusoid to angles the data never reached), each
+    fitted in the analysis band with a constant; the n explaining the most variance wins.
     """
-    r = s.residual[:, j]
     shown = COGGING_HARMONICS[COGGING_HARMONICS * np.ptp(s.q[:, j]) >= 2 * np.pi * MIN_COGGING_PERIODS]
     if not shown.size:
         return None
+    total = float(np.sum(r**2))
     best = (float(shown[0]), 0.0, -1.0)
     for n in shown:
         cols = s.smooth(np.column_stack([np.sin(n * s.q[:, j]), np.cos(n * s.q[:, j]), np.ones(s.n_samples)]))
@@ -504,7 +505,14 @@ def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
         explained = float(np.sum((cols @ c) ** 2))
         if explained > best[2]:
             best = (float(n), float(np.hypot(c[0], c[1])), explained)
-    return best[0], best[1]
+    return best[0], best[1], best[2] / total if total > 0 else 0.0
+
+
+def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
+    """The position-periodic torque that best explains joint j's training residual (`position_harmonic`):
+    (harmonic n [cycles per revolution], amplitude), or None where the joint's motion spans no period."""
+    found = position_harmonic(s, j, s.residual[:, j])
+    return None if found is None else (found[0], found[1])
 
 
 def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:

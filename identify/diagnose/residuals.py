@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from identify.diagnose.candidates import COGGING_HARMONICS, Signals
+from identify.diagnose.candidates import Signals, position_harmonic
 from identify.diagnose.statistics import correlation_time
 
 __all__ = ["analyse_residual", "changing_offsets", "noise_floor", "residual_signature", "whiteness"]
@@ -215,8 +215,9 @@ def residual_signature(
     Returns:
         Per joint: `rms` [N m] and `rms_over_noise`; `spectral_peaks` [{`hz`, `share`}] (the strongest
         Welch peaks and their share of the residual's power); `correlation` with q, dq, sign(dq), ddq;
-        `position_periodic` {`cycles_per_rad`, `period_rad`, `amplitude` [N m], `share`} (the best
-        a sin(n q) + b cos(n q) over `COGGING_HARMONICS` and the share of the residual variance it explains).
+        `position_periodic` {`cycles_per_revolution`, `period_rad`, `amplitude` [N m], `share`}
+        (`candidates.position_harmonic`: the best a sin(n q) + b cos(n q) over the periods the motion spans, and
+        the share of the residual variance it explains; 0 where it spans none).
     """
     fs = 1.0 / float(np.median(np.diff(s.time)))
     out: dict[str, Any] = {}
@@ -229,13 +230,7 @@ def residual_signature(
         idx, _ = signal.find_peaks(pxx)
         idx = idx[np.argsort(pxx[idx])[::-1][:peaks]] if idx.size else np.argsort(pxx)[::-1][:1]
         probes = {"q": s.q[:, j], "dq": s.dq[:, j], "sign_dq": np.sign(s.dq[:, j]), "ddq": s.ddq[:, j]}
-        best = (0.0, 0.0, 0.0)
-        for n in COGGING_HARMONICS:
-            cols = s.smooth(np.column_stack([np.sin(n * s.q[:, j]), np.cos(n * s.q[:, j]), np.ones(len(x))]))
-            c, *_ = np.linalg.lstsq(cols, x, rcond=None)
-            share = float(np.sum((cols @ c) ** 2)) / total
-            if share > best[2]:
-                best = (float(n), float(np.hypot(c[0], c[1])), share)
+        best = position_harmonic(s, j, x) or (0.0, 0.0, 0.0)
         rms = float(np.sqrt(np.mean(x**2)))
         out[name] = {
             "rms": rms,
@@ -243,7 +238,7 @@ def residual_signature(
             "spectral_peaks": [{"hz": float(f[i]), "share": float(pxx[i] / np.sum(pxx))} for i in idx],
             "correlation": {k: _corr(x, v) for k, v in probes.items()},
             "position_periodic": {
-                "cycles_per_rad": best[0],
+                "cycles_per_revolution": best[0],
                 "period_rad": 2 * np.pi / best[0] if best[0] else float("nan"),
                 "amplitude": best[1],
                 "share": best[2],
