@@ -202,7 +202,9 @@ def test_a_finding_whose_joint_fit_z_is_below_the_floor_is_named_in_the_notes() 
     from identify.diagnose.diagnosis import Finding, _weak_findings
 
     def finding(effect: str, value: float, std: float, at_bound: str | None = None) -> Finding:
-        return Finding(effect, "elbow", value, std, "N m", "joint damping", {}, {}, at_bound=at_bound)
+        null = 1.0 if effect == "torque_gain" else 0.0  # as `_findings` writes evidence["z"]
+        z = (value - null) / std if std > 0 else float("nan")
+        return Finding(effect, "elbow", value, std, "N m", "joint damping", {"z": z}, {}, at_bound=at_bound)
 
     weak = finding("payload", 0.265, 0.107)
     strong = finding("viscous_friction", 0.02, 0.001)

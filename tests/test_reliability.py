@@ -601,18 +601,23 @@ def test_a_failed_single_run_writes_failure_json_and_its_log(tmp_path: Path) -> 
     assert "binding constraint ddq" in (tmp_path / "sysid-run.log").read_text()
 
 
-def test_sigterm_ends_a_run_through_its_clean_up(tmp_path: Path) -> None:
+def _signalled_run(folder: Path, sig: int) -> tuple[int, str]:
+    """(exit status, stderr) of a run into `folder` sent `sig` once it holds the folder's lock."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "harness.run", "system=wheel_pendulum", "record=none", f"hydra.run.dir={tmp_path}"],
+        [sys.executable, "-m", "harness.run", "system=wheel_pendulum", "record=none", f"hydra.run.dir={folder}"],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    pid = _wait_for_lock(tmp_path)
-    os.kill(pid, signal.SIGTERM)
+    os.kill(_wait_for_lock(folder), sig)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    return proc.returncode, err
+
+
+def test_sigterm_ends_a_run_through_its_clean_up(tmp_path: Path) -> None:
+    returncode, err = _signalled_run(tmp_path, signal.SIGTERM)
+    assert returncode == 128 + signal.SIGTERM, err[-2000:]
     assert "terminated by SIGTERM" in err.strip().splitlines()[-1]
     assert json.loads((tmp_path / "failure.json").read_text())["error"] == "terminated by SIGTERM"
     assert not list(tmp_path.glob(".*.tmp")) and not (tmp_path / LOCK_NAME).exists()
@@ -621,17 +626,8 @@ def test_sigterm_ends_a_run_through_its_clean_up(tmp_path: Path) -> None:
 def test_ctrl_c_ends_a_run_with_one_line_and_status_130(tmp_path: Path) -> None:
     """SIGINT (Ctrl-C) printed the line and then a KeyboardInterrupt traceback, and the process died by the
     signal."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "harness.run", "system=wheel_pendulum", "record=none", f"hydra.run.dir={tmp_path}"],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    pid = _wait_for_lock(tmp_path)
-    os.kill(pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err[-2000:]
+    returncode, err = _signalled_run(tmp_path, signal.SIGINT)
+    assert returncode == 130, err[-2000:]
     assert "Traceback" not in err and "interrupted (Ctrl-C)" in err.strip().splitlines()[-1], err[-2000:]
     assert json.loads((tmp_path / "failure.json").read_text())["error"] == "interrupted (Ctrl-C)"
     assert not (tmp_path / LOCK_NAME).exists()

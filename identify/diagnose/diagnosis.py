@@ -823,16 +823,11 @@ def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.n
 
 
 def _weak_findings(findings: list[Finding], min_z: float) -> list[tuple[Finding, float]]:
-    """The findings (not the rigid body, not one at its bound) whose reported |value - null| / std is below
-    `min_z`: the selection judged each beside the findings before it, the report fits them all together."""
-    out = []
-    for f in findings:
-        null = 1.0 if f.effect == "torque_gain" else 0.0
-        if f.effect != "rigid_body" and f.at_bound is None and np.isfinite(f.std) and f.std > 0:
-            z = abs(f.value - null) / f.std
-            if z < min_z:
-                out.append((f, float(z)))
-    return out
+    """The findings (not the rigid body, not one at its bound) whose reported |value - null| / std
+    (`evidence["z"]`, NaN at a bound) is below `min_z`: the selection judged each beside the findings before
+    it, the report fits them all together."""
+    zs = [(f, abs(float(f.evidence.get("z", np.nan)))) for f in findings if f.effect != "rigid_body"]
+    return [(f, z) for f, z in zs if np.isfinite(z) and z < min_z]
 
 
 def _final_fit(

@@ -39,7 +39,7 @@ column the refit has left is offset-like there is nothing to compare them with: 
 as every candidate is, by its own held-out gain against no refit. Any other candidate with a column that a
 constant nearly spans (a joint stiffness k (q - q0) carries a constant; a joint offset's gravity derivative is
 nearly one at small angles), other than the torque offset itself, must also lower the held-out error by
-`min_gain` beside the joints' constants not yet chosen, or it is not admitted: on such data it is the sensor's
+`min_gain_records` beside the joints' constants not yet chosen, or it is not admitted: on such data it is the sensor's
 zero under another name.
 
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
@@ -402,6 +402,7 @@ def select_effects(
         scored.clear()
         free = const[:, :, _span_free(basis, _flat(const, sw))]  # the joints' constants not chosen yet
         Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
+        alone: float | None = None  # the constants' held-out MSE without any candidate, once it is asked for
         for cand in cands:
             if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
                 continue
@@ -424,17 +425,15 @@ def select_effects(
                 )
             else:
                 rss_c, held_c = score(kept)
-                scored[cand.key] = _fold_mse(held_c, folds, n_folds)  # a shape judged, whatever follows
-                if cand.key in stands_for_offset and free.shape[2]:
-                    alone = _scores(_flat(Xc, sw), b, folds, n_folds, lo_c, hi_c)[1]
-                    if _fold_mse(score_offsets(kept)[1], folds, n_folds) > (1 - min_gain) * _fold_mse(
-                        alone, folds, n_folds
-                    ):
-                        continue  # on these data it is a constant torque: the joints' constants do as well
+            cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
+            scored[cand.key] = cv_c  # a shape judged, whatever follows
+            if cand.key in stands_for_offset and free.shape[2]:
+                if alone is None:
+                    alone = _fold_mse(_scores(_flat(Xc, sw), b, folds, n_folds, lo_c, hi_c)[1], folds, n_folds)
+                if _fold_mse(score_offsets(kept)[1], folds, n_folds) > (1 - min_gain) * alone:
+                    continue  # on these data it is a constant torque: the joints' constants do as well
             held_nominal = tuple(cand.parameter_names[c] for c in dropped)
             bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
-            cv, cv_c = _fold_mse(held, folds, n_folds), _fold_mse(held_c, folds, n_folds)
-            scored[cand.key] = cv_c
             _, judged, unanimous = fold_gains(held_c)
             bic_asked = -options.bic_margin if not unanimous else (np.inf if shape_mse is not None else 0.0)
             against = cv if shape_mse is None else min(cv, shape_mse)
