@@ -63,3 +63,52 @@ def test_lab_form_refit_is_the_least_squares_optimum_of_their_form() -> None:
     assert sse_refit <= sse_lab * (1 + 1e-9)
     # and it is a real improvement on the files it was fitted to, not a copy of the lab's numbers
     assert sse_refit < 0.9 * sse_lab
+
+
+def _split(name: str, calibrated: list[float], in_sample: list[float], lab: list[float]) -> dict:
+    best = lab
+    return {
+        "held_out": name,
+        "torque_rms": {
+            "nominal": [1.0, 1.0],
+            "calibrated": calibrated,
+            "authors_x": lab,
+            "lab_form_others": [0.5, 0.5],
+            "lab_form_all": [0.4, 0.4],
+            "calibrated_all": in_sample,
+        },
+        "best_authors": best,
+        "wins": [c <= b for c, b in zip(calibrated, best, strict=True)],
+        "both_filtered": {"calibrated": calibrated, "authors_x": lab},
+        "wins_both_filtered": [c <= b for c, b in zip(calibrated, best, strict=True)],
+        "reachable_in_sample": [True, True],
+        "calibrated_in_sample": [c <= b for c, b in zip(in_sample, best, strict=True)],
+        "findings": [],
+    }
+
+
+def test_the_lofo_summary_counts_the_diagnosis_in_sample_bound_on_its_own_line() -> None:
+    """The diagnosis fitted on every file (`calibrated_all`) is counted apart from the held-out splits: a split
+    lost held out but won in sample (and the reverse) moves each count its own way."""
+    from bench.diagnose import _lofo_markdown, lofo_summary
+
+    table = {
+        "session": "X",
+        "authors": ["authors_x"],
+        "splits": [
+            _split("a.csv", [0.1, 0.3], [0.1, 0.1], [0.2, 0.2]),  # held out: elbow lost; in sample: both won
+            _split("b.csv", [0.1, 0.1], [0.3, 0.1], [0.2, 0.2]),  # held out: both won; in sample: shoulder lost
+        ],
+    }
+    lines = lofo_summary({"X": table}).split("\n")
+    assert lines[0] == "torque_rms: sum 0.6000 N m, 3 of 4 joints and 1 of 2 splits <= the lab's best"
+    assert lines[2] == "in-sample bound (fitted on every file): sum 0.6000 N m, 3 of 4 joints and 1 of 2 files " + (
+        "<= the lab's best"
+    )
+    md = _lofo_markdown(table)
+    lab = "| 0.2000 / 0.2000 | 0.5000 / 0.5000 | 0.4000 / 0.4000 | yes / yes |"
+    assert f"| a.csv {lab} 0.1000 / 0.1000 | yes / yes |" in md
+    assert f"| b.csv {lab} 0.3000 / 0.1000 | **no** / yes |" in md
+    del table["splits"][0]["torque_rms"]["calibrated_all"]  # a table from before the bound: no line, no table
+    assert "in-sample" not in lofo_summary({"X": table})
+    assert "calibrated, all files" not in _lofo_markdown(table)
