@@ -10,6 +10,7 @@ the user to edit. Keep it outside the repository and point the harness at its fo
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -79,13 +80,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is None:
         print(text, end="")
         return 0
+    if args.out.is_dir():
+        print(f"sysid-init: error: --out {args.out} is a folder; give the file to write", file=sys.stderr)
+        return 2
     if args.out.exists() and not args.force:
         print(f"sysid-init: error: {args.out} exists; pass --force to overwrite it", file=sys.stderr)
         return 2
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(f".{args.out.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(args.out)
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        tmp.replace(args.out)
+    except OSError as err:  # a parent that is a file, no permission: nothing half-written is left
+        with contextlib.suppress(OSError):  # none to remove where the parent is a file
+            tmp.unlink(missing_ok=True)
+        print(f"sysid-init: error: cannot write --out {args.out}: {err.strerror or err}", file=sys.stderr)
+        return 2
     print(f"wrote {args.out}")
     return 0
 

@@ -202,3 +202,22 @@ def test_a_joint_spring_is_not_named_for_a_shared_torque_zero() -> None:
         steps, _ = select_effects(pool, stack_signals(parts), np.full(2, 1.0 / SIGMA**2), SelectionOptions())
         named += [s.candidate.key for s in steps]
     assert named == []
+
+
+def test_an_effect_pinned_at_its_value_of_no_effect_is_not_named() -> None:
+    """A lighter link 2 (a negative point mass with its moments) is no payload: the bounded fit pins the payload's
+    mass at zero and fits the moments alone, which no payload can be. A headline at the bound where the effect is
+    absent is not significant (it was named as `payload link2 0 +- nan kg` on every seed)."""
+    plant = load_plant("two_link")
+    pool = candidates(plant, ["payload"], np.random.default_rng(0))
+    payload = pool[0]
+    assert payload.parameter_names[0] == "dm2" and payload.lower[0] == 0.0
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        parts = []
+        for r in range(3):
+            s = _record(plant, rng, r)
+            change = payload.build(s) @ np.array([-0.05, 0.0, -0.02, 0.004])
+            parts.append(Signals(**{**s.__dict__, "tau": s.tau_nominal + change + rng.normal(0, SIGMA, s.tau.shape)}))
+        steps, _ = select_effects(pool, stack_signals(parts), np.full(2, 1.0 / SIGMA**2), SelectionOptions())
+        assert [st.candidate.key for st in steps] == [], seed

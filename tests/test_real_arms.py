@@ -183,6 +183,21 @@ def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "run" / "results.json").read_text())["system"] == results["system"]
 
 
+@pytest.mark.parametrize("where", ["folder", "under_a_file"])
+def test_sysid_init_refuses_an_out_it_cannot_write_in_one_line(tmp_path: Path, where: str) -> None:
+    """--out an existing folder, or a path under a file: one line, exit 2, no temporary file left (it raised
+    IsADirectoryError and left .<name>.tmp, or FileExistsError)."""
+    from harness.init import main
+
+    (tmp_path / "afile").write_text("x")
+    out = tmp_path / "afolder" if where == "folder" else tmp_path / "afile" / "x.yaml"
+    out.mkdir() if where == "folder" else None
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    code = main([str(REPO / "mjcf" / "two_link.xml"), "--out", str(out), "--force"])
+    assert code == 2
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
 def test_a_slide_joint_is_identified_and_reported_as_a_force(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     model = tmp_path / "cart.xml"
     model.write_text(

@@ -490,7 +490,9 @@ def select_effects(
         headline_at_bound = bool(fit.bound_flags()[sl][0] != 0)
         gains, _, unanimous = fold_gains(held_c)
         min_z = options.min_z_records if unanimous else options.min_z
-        significant = abs(value - null) > min_z * std if not headline_at_bound else True
+        # at a bound the std is not defined: significant unless the bound is the value of no effect (a payload
+        # pinned at zero mass, whose other columns fit what no payload can be)
+        significant = abs(value - null) > min_z * std if not headline_at_bound else abs(value - null) > 1e-12
         if not significant or too_short:
             pool = [c for c in pool if c.key != cand.key]  # not significant: never again
             continue
