@@ -66,7 +66,7 @@ def test_lab_form_refit_is_the_least_squares_optimum_of_their_form() -> None:
 
 
 def _split(name: str, calibrated: list[float], in_sample: list[float], lab: list[float]) -> dict:
-    best = lab
+    """One split of a `lofo_table`, with `lab` the best lab model's RMS."""
     return {
         "held_out": name,
         "torque_rms": {
@@ -77,12 +77,12 @@ def _split(name: str, calibrated: list[float], in_sample: list[float], lab: list
             "lab_form_all": [0.4, 0.4],
             "calibrated_all": in_sample,
         },
-        "best_authors": best,
-        "wins": [c <= b for c, b in zip(calibrated, best, strict=True)],
+        "best_authors": lab,
+        "wins": [c <= b for c, b in zip(calibrated, lab, strict=True)],
         "both_filtered": {"calibrated": calibrated, "authors_x": lab},
-        "wins_both_filtered": [c <= b for c, b in zip(calibrated, best, strict=True)],
+        "wins_both_filtered": [c <= b for c, b in zip(calibrated, lab, strict=True)],
         "reachable_in_sample": [True, True],
-        "calibrated_in_sample": [c <= b for c, b in zip(in_sample, best, strict=True)],
+        "calibrated_in_sample": [c <= b for c, b in zip(in_sample, lab, strict=True)],
         "findings": [],
     }
 

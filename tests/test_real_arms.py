@@ -184,17 +184,22 @@ def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("where", ["folder", "under_a_file"])
-def test_sysid_init_refuses_an_out_it_cannot_write_in_one_line(tmp_path: Path, where: str) -> None:
+def test_sysid_init_refuses_an_out_it_cannot_write_in_one_line(
+    tmp_path: Path, where: str, capsys: pytest.CaptureFixture
+) -> None:
     """--out an existing folder, or a path under a file: one line, exit 2, no temporary file left (it raised
     IsADirectoryError and left .<name>.tmp, or FileExistsError)."""
     from harness.init import main
 
     (tmp_path / "afile").write_text("x")
     out = tmp_path / "afolder" if where == "folder" else tmp_path / "afile" / "x.yaml"
-    out.mkdir() if where == "folder" else None
+    if where == "folder":
+        out.mkdir()
     before = sorted(p.name for p in tmp_path.rglob("*"))
     code = main([str(REPO / "mjcf" / "two_link.xml"), "--out", str(out), "--force"])
     assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("sysid-init: error: ") and str(out) in err, err
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
 
 

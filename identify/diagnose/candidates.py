@@ -238,6 +238,11 @@ class Candidate:
     variant: str = ""
 
     @property
+    def null(self) -> float:
+        """The value that means no effect: a gain of 1, zero for every other effect."""
+        return 1.0 if self.effect == "torque_gain" else 0.0
+
+    @property
     def native(self) -> bool:
         """True where MuJoCo has an attribute for the effect (the selection prefers those on a tie)."""
         return self.counterpart != "custom numeric"

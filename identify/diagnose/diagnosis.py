@@ -979,7 +979,6 @@ def _findings(
         )
         pnames = [s.candidate.parameter_names[j] for j in s.kept]
         stds = np.sqrt(np.clip(np.diag(fit.cov)[sl], 0, None))
-        null = 1.0 if s.candidate.effect == "torque_gain" else 0.0
         at_bound = side[int(flags[sl][0])]
         if at_bound is not None:
             std = float("nan")
@@ -996,7 +995,7 @@ def _findings(
                     "heldout_mse_before": s.cv_mse_before,
                     "heldout_mse_after": s.cv_mse_after,
                     "heldout_gain": 1.0 - s.cv_mse_after / s.cv_mse_before if s.cv_mse_before > 0 else 0.0,
-                    "z": (value - null) / std if std > 0 else float("nan"),
+                    "z": (value - s.candidate.null) / std if std > 0 else float("nan"),
                     "correlation_time_samples": fit.correlation_time,
                 },
                 torque_rms_after=_per_joint(names, _rms(pred, s_va.smooth(s_va.tau))),

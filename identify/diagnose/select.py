@@ -485,14 +485,13 @@ def select_effects(
         fit = fit_columns(X_new, residual, weights, lower=lo_new, upper=hi_new, record=row_record, used=train.used)
         sl = slice(X.shape[2], X_new.shape[2])
         value, std = cand.value(fit.coef[sl], fit.cov[sl, sl], X_new[:, :, sl])
-        null = 1.0 if cand.effect == "torque_gain" else 0.0
         too_short = cand.effect == "time_delay" and abs(value) < options.min_delay_samples * dt
         headline_at_bound = bool(fit.bound_flags()[sl][0] != 0)
         gains, _, unanimous = fold_gains(held_c)
         min_z = options.min_z_records if unanimous else options.min_z
         # at a bound the std is not defined: significant unless the bound is the value of no effect (a payload
         # pinned at zero mass, whose other columns fit what no payload can be)
-        significant = abs(value - null) > min_z * std if not headline_at_bound else abs(value - null) > 1e-12
+        significant = abs(value - cand.null) > (1e-12 if headline_at_bound else min_z * std)
         if not significant or too_short:
             pool = [c for c in pool if c.key != cand.key]  # not significant: never again
             continue
