@@ -74,6 +74,12 @@ _ENCODINGS = (  # byte-order mark, its codec without the mark, the codec that re
 )
 _BLOCK_ROWS = 200_000  # rows read at a time: a block of a wide file is a few tens of MB
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
+_TORQUE_LIMIT_FACTOR = 10.0  # a torque whose 99th-percentile size is this many times the actuator's limit is in
+# other units (mN m, N cm) or another column: a motor's peak torque is a few times its rated one, not ten
+_MAX_TORQUE = 1e6  # [N m] (or [N]): no robot joint carries more; the bound where an actuator has no limit
+_RANGE_TOL = 0.05  # [rad] (or [m] x 0.1): beyond its range by more, a hinge logged whole turns off is turned back
+_RANGE_FAR = 0.5  # [rad] (or [m] x 0.1): beyond its range by more, an angle is refused: a hard stop's soft
+# contact lets a joint in a little (MuJoCo's own default limit, 0.2 rad at an impact at speed), never this far
 
 
 @dataclass(frozen=True)
@@ -81,7 +87,7 @@ class Repair:
     """One repair made while reading a file, recorded in `dataset.meta["repairs"]`.
 
     Attributes:
-        kind: `startup_trim`, `wrap`, `glitch`, `edge_glitch`, `torque_spike` or `resample`.
+        kind: `startup_trim`, `wrap`, `glitch`, `edge_glitch`, `whole_turns`, `torque_spike` or `resample`.
         column: the file's column (and ours) that was repaired, or `time`.
         rows: data rows of the file (0-based) where it applies: the first rows of each event.
         message: what was found and what was done, in words.
@@ -154,6 +160,7 @@ def read_measured(
     names = plant.joint_names
     del values
     _check_angle_units(plant, t, arrays, labels, src)
+    _check_torque_units(plant, arrays, labels, sources, src)
 
     rows = np.arange(len(t))
     repairs: list[Repair] = []
@@ -192,6 +199,7 @@ def read_measured(
     arrays["q"] = q
     if head or tail:
         t, rows, arrays = t[head : len(t) - tail], rows[head : len(t) - tail], _cut(arrays, head, len(t) - tail)
+    repairs += _fit_joint_ranges(t, arrays["q"], plant, labels=labels, rows=rows, src=src, repair=repair)
 
     for key in ("tau", "tau_cmd"):
         torque = arrays[key]
@@ -693,8 +701,7 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
 
 def _check_time_unit(step: float, column: _Column, label: str, src: str) -> None:
     """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is. The hint
-    gives the mapping as a command-line override (`++` adds the key or replaces it, whether the data config maps
-    columns or not)."""
+    gives the mapping as a command-line override."""
     if not step > 0 or 1.0 / step >= _MIN_SAMPLE_RATE_HZ:
         return
     guesses = [(unit, f) for unit, f in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))]
@@ -702,14 +709,9 @@ def _check_time_unit(step: float, column: _Column, label: str, src: str) -> None
     hint = "; the harness expects time in seconds"
     if likely:
         unit, f = likely[0]
-        # seconds = f (scale file + offset): the mapping's scale and offset both take the factor
-        terms = [("column", json.dumps(column.name)), ("scale", f"{column.scale * f:g}")]
-        terms += [("offset", f"{column.offset * f:g}")] if column.offset else []
-        spaced = ", ".join(f"{k}: {v}" for k, v in terms)
-        packed = ",".join(f"{k}:{v}" for k, v in terms)
         hint = (
             f": time looks like {unit} ({1.0 / (step * f):.4g} Hz then); the harness expects seconds: map it with "
-            f"{{{spaced}}} as data.columns.time (on the command line: '++data.columns.time={{{packed}}}')"
+            f"{_mapping_hint(column, 'time', f)}"
         )
     raise DataError(
         f"{src}: {label} steps by a median {step:.6g} per row, {1.0 / step:.4g} Hz sampling if in seconds, "
@@ -759,6 +761,122 @@ def _check_angle_units(
                 f"the joint range [{lo:.4g}, {hi:.4g}] rad of {plant.name}, and inside it when read as degrees: the "
                 "angle looks like degrees; the harness expects radians"
             )
+
+
+def _mapping_hint(column: _Column, ours: str, factor: float) -> str:
+    """The column mapping that multiplies `column` by `factor`, as a command-line override (`++` adds the key or
+    replaces it, whether the data config maps columns or not). Ours = f (scale file + offset): the mapping's scale
+    and offset both take the factor."""
+    terms = [("column", json.dumps(column.name)), ("scale", f"{column.scale * factor:g}")]
+    terms += [("offset", f"{column.offset * factor:g}")] if column.offset else []
+    spaced = ", ".join(f"{k}: {v}" for k, v in terms)
+    packed = ",".join(f"{k}:{v}" for k, v in terms)
+    return f"{{{spaced}}} as data.columns.{ours} (on the command line: '++data.columns.{ours}={{{packed}}}')"
+
+
+def _check_torque_units(
+    plant: Plant, arrays: dict[str, np.ndarray | None], labels: dict[str, str], sources: dict[str, _Column], src: str
+) -> None:
+    """Refuse a torque column far beyond what its actuator can give: a torque in mN m or N cm, or another
+    column, would otherwise be fitted as links of hundreds of kilograms."""
+    for key in ("tau", "tau_cmd"):
+        x = arrays[key]
+        if x is None:
+            continue
+        for j, n in enumerate(plant.joint_names):
+            ours = f"{key}_{n}"
+            if ours not in labels or not plant.actuated[j]:
+                continue
+            size = np.abs(x[:, j])
+            typical = float(np.percentile(size, 99.0))
+            limit = float(plant.tau_limit[j])
+            limited = bool(np.isfinite(limit) and limit > 0)
+            bound = _TORQUE_LIMIT_FACTOR * limit if limited else _MAX_TORQUE
+            if typical <= bound:
+                continue
+            unit = "N m" if plant.hinge[j] else "N"
+            k = int(np.argmax(size))
+            against = (
+                f"{typical / limit:.3g} times the actuator limit {limit:.4g} {unit} of {plant.name}"
+                if limited
+                else f"beyond any robot joint ({_MAX_TORQUE:g} {unit})"
+            )
+            units = [(prefix, f) for prefix, f in (("m", 1e-3), ("c", 1e-2)) if typical * f <= bound]
+            if units:
+                prefix, f = units[0]
+                hint = (
+                    f"it looks like {prefix}{unit} ({1 / f:g} per {unit}); the harness expects {unit}: map it with "
+                    f"{_mapping_hint(sources[ours], ours, f)}"
+                )
+            else:
+                hint = "a wrong unit or another column? Give a scale in the column mapping"
+            raise DataError(
+                f"{src}: {labels[ours]} is {typical:.4g} {unit} or more on 1 % of the rows (row {k}, line {k + 2}: "
+                f"{x[k, j]:.4g}), {against}; {hint}"
+            )
+
+
+def _fit_joint_ranges(
+    t: np.ndarray,
+    q: np.ndarray | None,
+    plant: Plant,
+    *,
+    labels: dict[str, str],
+    rows: np.ndarray,
+    src: str,
+    repair: bool,
+) -> list[Repair]:
+    """Bring a hinge logged a whole number of turns off back into its joint range (reported), or refuse an angle
+    far outside the range: the model's limit would stop the simulated joint there, and every simulated error
+    after it would be the limit's, not the model's. A little beyond the range is a joint pressed into its stop."""
+    assert q is not None
+    repairs = []
+    for j, n in enumerate(plant.joint_names):
+        lo, hi = (float(v) for v in plant.q_range[j])
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            continue
+        x = q[:, j]
+        unit = 1.0 if plant.hinge[j] else 0.1
+
+        def outside(y: np.ndarray, tol: float, lo: float = lo, hi: float = hi) -> np.ndarray:
+            return np.flatnonzero((y < lo - tol) | (y > hi + tol))
+
+        bad = outside(x, _RANGE_TOL * unit)
+        if not bad.size:
+            continue
+        label = labels[f"q_{n}"]
+        turns = [k for k in range(-4, 5) if k and plant.hinge[j] and not outside(x + 2 * np.pi * k, _RANGE_TOL).size]
+        if turns and repair:
+            k = turns[0]
+            q[:, j] = x + 2 * np.pi * k
+            repairs.append(
+                Repair(
+                    "whole_turns",
+                    label,
+                    (int(rows[0]),),
+                    f"{label}: added {k:+d} x 2 pi to every row: as logged it lies outside the joint range "
+                    f"[{lo:.4g}, {hi:.4g}] rad on {bad.size} of {len(x)} rows, and inside it {abs(k)} turn(s) "
+                    "over (an encoder zero a whole turn off)",
+                )
+            )
+            continue
+        bad = outside(x, _RANGE_FAR * unit)
+        if not bad.size:
+            continue
+        k = int(bad[np.argmax(np.maximum(lo - x[bad], x[bad] - hi))])
+        unit_name = "rad" if plant.hinge[j] else "m"
+        why = (
+            f"it fits {turns[0]:+d} whole turn(s) over; not repaired (repair=False)"
+            if turns
+            else "widen the joint's range in the MJCF, or correct the angle's zero with an offset in the column mapping"
+        )
+        raise DataError(
+            f"{src}: {label} leaves the joint range [{lo:.4g}, {hi:.4g}] {unit_name} of {plant.name} by more than "
+            f"{_RANGE_FAR * unit:g} {unit_name} on {bad.size} of "
+            f"{len(x)} rows (the farthest row {rows[k]}, line {rows[k] + 2}, t = {t[k]:.6g} s: {x[k]:.4g}); the "
+            f"model's limit would stop it there: {why}"
+        )
+    return repairs
 
 
 def _rate_ratio(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float | None:

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from dynamics.errors import DataError
 from envs.dataset import Dataset
 from identify.diagnose.anomalies import find_anomalies
-from identify.diagnose.diagnosis import Finding, _verdict, _with_drift
+from identify.diagnose.candidates import Signals
+from identify.diagnose.diagnosis import Finding, _verdict, _with_drift, check_torque_columns
 
 
 def _record(q: np.ndarray, tau: np.ndarray, tau_cmd: np.ndarray | None = None) -> Dataset:
@@ -268,3 +274,63 @@ def test_a_slide_is_still_below_a_millimetre_not_below_a_centimetre() -> None:
     data.q[:, 1] *= 0.1  # 0.5 mm
     still = find_anomalies([data], hinge=np.array([True, False]))
     assert [(a.kind, a.joint) for a in still] == [("joint_never_moves", "elbow")] and "range_m" in still[0].detail
+
+
+def _shared_logs() -> list[Path]:
+    from conftest import SHARED_DATA
+
+    files = sorted(SHARED_DATA.glob("dfki_double_pendulum_c*/*.csv"))
+    if not files:
+        pytest.skip(f"real DFKI logs not found under {SHARED_DATA} (the project was cloned without ../shared)")
+    return files
+
+
+def _shared_record(path: Path, edit: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[Dataset, Signals]:
+    from omegaconf import OmegaConf
+
+    from dynamics.plant import load_plant
+    from envs.measured import read_measured
+    from identify.diagnose.diagnosis import _records
+
+    conf = Path(__file__).resolve().parents[1] / "conf" / "data"
+    name = "dfki_double_pendulum_c1" if "_c1" in str(path.parent) else "dfki_double_pendulum"
+    columns = OmegaConf.to_container(OmegaConf.load(conf / f"{name}.yaml").columns)
+    plant = load_plant("two_link")
+    data = read_measured(path, plant, columns=columns)  # type: ignore[arg-type]
+    if edit is not None:
+        data = dataclasses.replace(data, tau=edit(data.tau.copy()))
+    rec = _records(plant, [data], "butterworth", {"cutoff_hz": 10.0}, 5.0)[0]
+    return data, rec.signals
+
+
+def test_every_shared_log_passes_the_torque_column_check_and_a_flipped_or_swapped_one_does_not() -> None:
+    """Flipped: every file on the shoulder, and on the elbow wherever it is driven (C.1 144115's elbow is passive:
+    its torque is about zero, no sign to read). Swapped: where the two joints' nominal torques differ enough along
+    the motion (six of the ten files); a swap in a file where they do not is not named (no false claim)."""
+    from dynamics.plant import load_plant
+
+    plant = load_plant("two_link")
+    flipped = {"shoulder": 0, "elbow": 0}
+    swapped = 0
+    files = _shared_logs()
+    for path in files:
+        check_torque_columns(plant, *_shared_record(path))  # the logs as they are: no refusal
+        for j, joint in enumerate(plant.joint_names):
+
+            def flip(tau: np.ndarray, j: int = j) -> np.ndarray:
+                tau[:, j] *= -1.0
+                return tau
+
+            try:
+                check_torque_columns(plant, *_shared_record(path, flip))
+            except DataError as err:
+                assert f"{path.name}: tau_{joint} (the file's tau_meas{j + 1}) runs against" in str(err)
+                assert "its sign looks flipped" in str(err)
+                flipped[joint] += 1
+        try:
+            check_torque_columns(plant, *_shared_record(path, lambda tau: tau[:, ::-1].copy()))
+        except DataError as err:
+            assert "the two columns look swapped" in str(err)
+            swapped += 1
+    assert flipped == {"shoulder": len(files), "elbow": len(files) - 1}
+    assert swapped == 6

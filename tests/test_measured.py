@@ -5,6 +5,7 @@ from __future__ import annotations
 import codecs
 import gzip
 import os
+import re
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -369,7 +370,8 @@ def test_glitches_and_wraps_are_found_without_a_velocity_column(tmp_path: Path, 
     cols["q_elbow"][300] -= 0.5
     data = read_measured(write(tmp_path / "spin.csv", cols), plant)
     kinds = {r.kind: r for r in data.meta["repairs"]}
-    assert set(kinds) == {"wrap", "glitch"} and len(kinds["wrap"].rows) == 2 and kinds["glitch"].rows == (300,)
+    assert {"wrap", "glitch"} <= set(kinds) and len(kinds["wrap"].rows) == 2 and kinds["glitch"].rows == (300,)
+    assert set(kinds) - {"wrap", "glitch"} <= {"whole_turns"}  # unwrapped past the joint range: a turn back in it
     np.testing.assert_allclose(data.q[:, 0] - data.q[0, 0], spin - spin[0], atol=1e-12)
     np.testing.assert_allclose(data.q[:, 1], table()["q_elbow"], atol=1e-5)
 
@@ -721,3 +723,78 @@ def test_two_header_only_files_are_refused_for_what_they_are_not_as_copies(tmp_p
     with pytest.raises(DataError) as err:
         read_many([a, b], plant)
     assert "a copy" not in str(err.value) and "a.csv" in str(err.value) and "b.csv" in str(err.value)
+
+
+# units and ranges the model can check ----------------------------------------------------------------------------
+
+
+def test_a_torque_in_milli_newton_metres_is_refused_with_an_override_that_reads_it(
+    tmp_path: Path, plant: Plant
+) -> None:
+
+    from tests.conftest import compose_config
+
+    cols = table()
+    cols["tau_elbow"] = 1000.0 * cols["tau_elbow"]  # up to 1000 mN m, 83 x the 12 N m actuator limit
+    path = write(tmp_path / "mnm.csv", cols)
+    with pytest.raises(
+        DataError,
+        match=r"mnm\.csv: column 'tau_elbow' is 99\d\.\d* N m .*83\.\d times the actuator "
+        r"limit 12 N m of two_link; it looks like mN m \(1000 per N m\)",
+    ) as err:
+        read_measured(path, plant)
+    override = re.search(r"command line: '([^']+)'", str(err.value)).group(1)  # type: ignore[union-attr]
+    cfg = compose_config(["system=two_link", "data=csv", override], config_name="diagnose")
+    mapped = OmegaConf.to_container(cfg.data.columns)
+    data = read_measured(path, plant, columns=mapped)  # type: ignore[arg-type]
+    np.testing.assert_allclose(data.tau[:, 1], table()["tau_elbow"], atol=1e-12)
+
+
+@pytest.mark.parametrize("factor", [1e300, -1e12])
+def test_a_torque_no_robot_carries_is_refused_even_without_an_actuator_limit(
+    tmp_path: Path, plant: Plant, factor: float
+) -> None:
+    import dataclasses
+
+    unlimited = dataclasses.replace(plant, tau_limit=np.full(plant.nv, np.inf))
+    cols = table()
+    cols["tau_shoulder"] = factor * cols["tau_shoulder"]
+    with pytest.raises(DataError, match=r"column 'tau_shoulder' is .* beyond any robot joint \(1e\+06 N m\); a wrong "):
+        read_measured(write(tmp_path / "huge.csv", cols), unlimited)
+    # ... and a torque of a few times the limit (a motor's peak) is read as it is
+    cols = table()
+    cols["tau_shoulder"] = 30.0 * cols["tau_shoulder"]
+    read_measured(write(tmp_path / "peak.csv", cols), plant)
+
+
+def test_an_angle_logged_a_whole_turn_off_is_turned_back_into_the_joint_range(tmp_path: Path) -> None:
+    pendulum = load_plant("pendulum")  # a hinge limited to [-pi, pi]
+    t = np.arange(1000) / FS
+    q = 1.2 * np.sin(2 * np.pi * 0.7 * t)
+    cols = {"time": t, "q_swing": q + 2 * np.pi, "tau_swing": np.sin(t)}
+    data = read_measured(write(tmp_path / "turn.csv", cols), pendulum)
+    (fix,) = [r for r in data.meta["repairs"] if r.kind == "whole_turns"]
+    assert "added -1 x 2 pi" in fix.message
+    np.testing.assert_allclose(data.q[:, 0], q, atol=1e-12)
+    with pytest.raises(
+        DataError,
+        match=r"column 'q_swing' leaves the joint range .* fits -1 whole turn\(s\) over; not "
+        r"repaired \(repair=False\)",
+    ):
+        read_measured(write(tmp_path / "turn.csv", cols), pendulum, repair=False)
+
+
+def test_an_angle_far_outside_the_joint_range_is_refused_and_one_pressed_into_its_stop_is_read(tmp_path: Path) -> None:
+    pendulum = load_plant("pendulum")
+    t = np.arange(1000) / FS
+    cols = {"time": t, "q_swing": 2.9 * np.sin(2 * np.pi * 0.7 * t) + 1.0, "tau_swing": np.sin(t)}  # up to 3.9 rad
+    far = (
+        r"turn\.csv: column 'q_swing' leaves the joint range \[-3\.142, 3\.142\] rad of pendulum by more than 0\.5 "
+        r"rad on \d+ of 1000 rows \(the farthest row \d+, line \d+, t = [\d.]+ s: 3\.9\).* widen the joint's range"
+    )
+    with pytest.raises(DataError, match=far):
+        read_measured(write(tmp_path / "turn.csv", cols), pendulum)
+    cols["q_swing"] = np.clip(3.4 * np.sin(2 * np.pi * 0.7 * t), -3.3, 3.3)  # 0.16 rad into both stops
+    data = read_measured(write(tmp_path / "stop.csv", cols), pendulum)
+    assert not data.meta["repairs"]
+    np.testing.assert_allclose(data.q[:, 0], cols["q_swing"], atol=1e-12)

@@ -455,6 +455,25 @@ def test_no_data_path_is_one_line(tmp_path: Path) -> None:
     _one_line_error(proc, "data.path is not set")
 
 
+def test_a_flipped_torque_column_of_a_real_log_is_one_line_and_writes_nothing(tmp_path: Path) -> None:
+    from conftest import SHARED_DATA
+
+    log = SHARED_DATA / "dfki_double_pendulum_c0" / "trajectory_01.csv"
+    if not log.is_file():
+        pytest.skip(f"real DFKI logs not found at {log.parent} (the project was cloned without ../shared)")
+    out = tmp_path / "out"
+    proc = _cli(
+        "system=two_link",
+        "data=dfki_double_pendulum",
+        f"data.path=[{log},{log.with_name('trajectory_00.csv')}]",
+        "++data.columns.tau_elbow={column:tau_meas2,scale:-1}",
+        f"hydra.run.dir={out}",
+        module="harness.diagnose",
+    )
+    _one_line_error(proc, "tau_elbow (the file's -1 * tau_meas2) runs against the torque", "sign looks flipped")
+    assert not (out / "diagnosis.json").exists()
+
+
 def test_estimator_options_of_another_estimator_are_one_line(tmp_path: Path) -> None:
     proc = _cli("system=pendulum", "estimator.name=ols", f"hydra.run.dir={tmp_path}")
     _one_line_error(proc, "estimator.options.iterations is not an option of estimator 'ols'")

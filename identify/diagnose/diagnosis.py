@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from dynamics.base import base_parameters
+from dynamics.errors import DataError
 from dynamics.plant import Plant, plant_from_xml
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
@@ -46,7 +47,7 @@ from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simu
 from identify.diagnose.statistics import LinearFit
 from identify.estimators.least_squares import safe_sigma
 
-__all__ = ["DEFAULT_EFFECTS", "Diagnosis", "Finding", "ReferenceModel", "diagnose"]
+__all__ = ["DEFAULT_EFFECTS", "Diagnosis", "Finding", "ReferenceModel", "check_torque_columns", "diagnose"]
 
 DEFAULT_EFFECTS = (
     "armature",
@@ -275,6 +276,62 @@ def _records(
     return out
 
 
+SIGN_CORRELATION = -0.5  # a measured torque this anti-correlated with the nominal model's ...
+SIGN_SIZE = -0.1  # ... and at least this large a share of it with the opposite sign has a flipped sign (C.1 143704's
+# shoulder, all but passive, carries 0.18 of the nominal torque)
+SWAP_CORRELATION = 0.5  # two torques each correlated this well with the other joint's nominal torque ...
+SWAP_MARGIN = 0.2  # ... and by this much better than with their own are swapped columns
+
+
+def check_torque_columns(plant: Plant, data: Dataset, signal: Signals) -> None:
+    """Refuse a record whose torque column has the opposite sign of the torque the nominal model needs along
+    the motion, or two columns that follow each other's joint: a model error moves the torque by a share of
+    its size, never turns it around or over to another joint, and a fit would turn the model instead (negative
+    masses, a gain of -1).
+
+    Only joints that move in the record are compared (a joint held by static friction carries any torque
+    within its breakaway).
+
+    Raises:
+        DataError: the file, the column (as the file names it) and the two correlations.
+    """
+    a = signal.smooth(signal.tau_nominal)
+    b = signal.smooth(signal.tau)
+    still = set(still_joints(data, plant.hinge))
+    joints = [int(j) for j in np.flatnonzero(plant.actuated) if j not in still]
+    a = a - a.mean(axis=0)
+    b = b - b.mean(axis=0)
+    na, nb = np.linalg.norm(a, axis=0), np.linalg.norm(b, axis=0)
+    ok = (na > 0) & (nb > 0)
+    r = np.where(np.outer(ok, ok), (b.T @ a) / np.maximum(np.outer(nb, na), 1e-300), 0.0)  # r[i, j]: tau_i, nominal_j
+    cols = data.meta.get("columns", {})
+    names = plant.joint_names
+    src = Path(data.source).name if data.source else "the record"
+
+    def column(j: int) -> str:
+        ours = f"tau_{names[j]}"
+        return f"{ours} (the file's {cols[ours]})" if ours in cols and cols[ours] != ours else ours
+
+    band = f" below {signal.band_hz:g} Hz" if signal.band_hz else ""
+    for x, i in enumerate(joints):
+        for j in joints[x + 1 :]:
+            if min(r[i, j], r[j, i]) > SWAP_CORRELATION and max(r[i, i], r[j, j]) < min(r[i, j], r[j, i]) - SWAP_MARGIN:
+                raise DataError(
+                    f"{src}: {column(i)} follows the torque the nominal model needs at {names[j]} (correlation "
+                    f"{r[i, j]:.2f}{band}) and {column(j)} that at {names[i]} ({r[j, i]:.2f}), better than their own "
+                    f"joints' ({r[i, i]:.2f}, {r[j, j]:.2f}): the two columns look swapped; map them the other way "
+                    "round in data.columns"
+                )
+    for j in joints:
+        size = float(b[:, j] @ a[:, j]) / max(float(na[j]) ** 2, 1e-300)
+        if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE:
+            raise DataError(
+                f"{src}: {column(j)} runs against the torque the nominal model needs at {names[j]} along the motion "
+                f"(correlation {r[j, j]:.2f}{band}, {size:.2f} times its size): its sign looks flipped: negate its "
+                f"scale in the column mapping (data.columns.tau_{names[j]})"
+            )
+
+
 def _rows(rec: _Record) -> np.ndarray:
     valid = np.flatnonzero(rec.states.valid)
     return np.arange(valid[0], valid[-1] + 1)
@@ -367,6 +424,8 @@ def diagnose(
     options = dict(derivative_options or {})
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
+    for rec in [*tr, *va]:
+        check_torque_columns(plant, rec.data, rec.signals)
     names = plant.joint_names
     unfitted = _still_joints(tr, plant.hinge)  # (records, nv): torques left out of the fit
     s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)
