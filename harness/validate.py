@@ -132,7 +132,7 @@ def check_system(cfg: DictConfig, plant: Plant) -> None:
 
 
 def _check_estimator(cfg: DictConfig) -> None:
-    from identify.estimators import ESTIMATORS
+    from identify.estimators import ESTIMATORS, OPTION_RANGES
 
     name = _choice(cfg, "estimator.name", list(ESTIMATORS))
     options = _value(cfg, "estimator.options") or {}
@@ -156,6 +156,14 @@ def _check_estimator(cfg: DictConfig) -> None:
                 raise ConfigError(f"estimator.options.{key} must be a number, got {value!r}")
             if isinstance(default, int) and not isinstance(value, int):
                 raise ConfigError(f"estimator.options.{key} must be an integer, got {value!r}")
+        domain = OPTION_RANGES.get(name, {}).get(key)
+        if domain is None or (value is None and default is None):
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float) or not domain.contains(float(value)):
+            raise ConfigError(
+                f"estimator.options.{key} of estimator {name!r} must be {domain.describe()}"
+                f"{' (or null)' if default is None else ''}, got {value!r}"
+            )
 
 
 MAX_RECORD_ROWS = 2_000_000  # samples in one simulated record (a 7-DoF regressor of 2e6 rows is ~8 GB)

@@ -479,6 +479,47 @@ def test_estimator_options_of_another_estimator_are_one_line(tmp_path: Path) -> 
     _one_line_error(proc, "estimator.options.iterations is not an option of estimator 'ols'")
 
 
+@pytest.mark.parametrize(
+    ("estimator", "option", "value", "needle"),
+    [
+        (
+            "filtered",
+            "omega",
+            "-5",
+            "estimator.options.omega of estimator 'filtered' must be a number > 0 rad/s, got -5",
+        ),
+        ("rls", "alpha", "1.5", "estimator.options.alpha of estimator 'rls' must be a number in (0, 1], got 1.5"),
+        ("iv", "period_s", "abc", "estimator.options.period_s of estimator 'iv' must be a number > 0 s (or null)"),
+        ("wls", "iterations", "0", "estimator.options.iterations of estimator 'wls' must be an integer >= 1, got 0"),
+    ],
+)
+def test_an_estimator_option_out_of_its_range_is_one_line_before_anything_runs(
+    tmp_path: Path, estimator: str, option: str, value: str, needle: str
+) -> None:
+    proc = _cli(
+        "system=pendulum", f"estimator={estimator}", f"estimator.options.{option}={value}", f"hydra.run.dir={tmp_path}"
+    )
+    _one_line_error(proc, needle)
+    assert "[excitation]" not in proc.stderr and not (tmp_path / "results.json").exists()  # refused before the design
+
+
+def test_every_estimator_option_range_names_an_option_whose_default_it_holds() -> None:
+    import inspect
+
+    from identify.estimators import ESTIMATORS, OPTION_RANGES
+
+    assert set(OPTION_RANGES) == set(ESTIMATORS)
+    for name, ranges in OPTION_RANGES.items():
+        params = inspect.signature(ESTIMATORS[name]).parameters
+        for key, domain in ranges.items():
+            default = params[key].default
+            assert default is None or domain.contains(float(default)), (name, key, default)
+        numeric = {
+            k for k, p in params.items() if isinstance(p.default, int | float) and not isinstance(p.default, bool)
+        }
+        assert numeric <= set(ranges), (name, numeric - set(ranges))
+
+
 def test_unreadable_file_names_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / "locked.csv"
     path.write_text("time,q_swing,tau_swing\n0,0,0\n")
