@@ -44,7 +44,7 @@ from identify.diagnose.residuals import (
 )
 from identify.diagnose.select import SelectionOptions, Step, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
-from identify.diagnose.state_noise import check_state_noise
+from identify.diagnose.state_noise import check_state_noise, state_noise_share
 from identify.diagnose.statistics import LinearFit
 from identify.estimators.least_squares import safe_sigma
 
@@ -430,9 +430,10 @@ def diagnose(
         moving = np.ones(plant.nv, bool)
         moving[still_joints(rec.data, plant.hinge)] = False
         s = rec.signals
-        check_state_noise(
-            plant, rec.data, rec.states, s.tau_nominal, s.smooth, derivatives, options, moving=moving, band_hz=band_hz
+        share = state_noise_share(
+            plant, rec.data, rec.states, s.tau_nominal, s.smooth, derivatives, options, np.random.default_rng(0)
         )
+        check_state_noise(plant, rec.data, share, derivatives, options, moving=moving, band_hz=band_hz)
     names = plant.joint_names
     unfitted = _still_joints(tr, plant.hinge)  # (records, nv): torques left out of the fit
     s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)

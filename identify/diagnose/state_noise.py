@@ -90,9 +90,7 @@ def state_noise_share(
 def check_state_noise(
     plant: Plant,
     data: Dataset,
-    states: States,
-    tau_nominal: np.ndarray,
-    smooth: Any,
+    share: np.ndarray,
     method: str,
     options: dict[str, Any],
     *,
@@ -103,7 +101,8 @@ def check_state_noise(
     of the model torque's variance on an actuated joint that moves is their noise (see the module docstring).
 
     Args:
-        plant, data, states, tau_nominal, smooth, method, options: as `state_noise_share`.
+        plant, data, method, options: as `state_noise_share`.
+        share: (nv,) its result.
         moving: (nv,) False for a joint that never moves in the record (its torque is not fitted there).
         band_hz: the analysis band, for the message.
 
@@ -111,7 +110,6 @@ def check_state_noise(
         DataError: the file, the joint, the angle noise, the share, and the cut-off that would bring the share
             to half the limit (the share falls about as the fourth power of the cut-off).
     """
-    share = state_noise_share(plant, data, states, tau_nominal, smooth, method, options, np.random.default_rng(0))
     share = np.where(np.asarray(plant.actuated, bool) & moving, share, 0.0)
     j = int(np.argmax(share))
     if share[j] <= STATE_NOISE_SHARE:
