@@ -334,3 +334,17 @@ def test_every_shared_log_passes_the_torque_column_check_and_a_flipped_or_swappe
             swapped += 1
     assert flipped == {"shoulder": len(files), "elbow": len(files) - 1}
     assert swapped == 6
+
+
+def test_a_finding_the_final_fit_leaves_at_its_value_of_no_effect_is_not_named() -> None:
+    """The selection names an effect off its null; the final joint fit can still end it there (a friction at
+    zero, a gain of exactly 1 at a bound): such a finding adds nothing to the model and must not be named. At a
+    bound off the null, or at the null but not on a bound (an estimate that happens to be small), it stays."""
+    from identify.diagnose.diagnosis import _pinned_at_null
+
+    zero_at_bound = dataclasses.replace(_finding(), value=0.0, at_bound="lower")
+    gain_at_bound = dataclasses.replace(_finding(), effect="torque_gain", value=1.0, at_bound="upper")
+    off_null_at_bound = dataclasses.replace(_finding(), value=0.1, at_bound="lower")
+    zero_inside = dataclasses.replace(_finding(), value=0.0)
+    findings = [zero_at_bound, gain_at_bound, off_null_at_bound, zero_inside]
+    assert _pinned_at_null(findings, [0.0, 1.0, 0.0, 0.0]) == [zero_at_bound, gain_at_bound]

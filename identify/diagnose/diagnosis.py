@@ -489,6 +489,10 @@ def diagnose(
         position_matters=_position_matters(s_tr),
     )
     findings = _with_confounding(findings, steps, pool, s_tr, weights, X, m, selection.confound_independence)
+    # the selection names an effect only off its value of no effect; refitted with the effects chosen after it,
+    # one can still end there (pinned at its bound): it then adds nothing to the model and is not named
+    pinned = _pinned_at_null(findings, [st.candidate.null for st in steps])
+    findings = [f for f in findings if f not in pinned]
     ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m else None)
     refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx)
 
@@ -572,6 +576,11 @@ def diagnose(
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
+        + [
+            f"{f.name}: chosen by the selection, but fitted with the effects chosen after it, it ends at its "
+            f"{f.at_bound} bound, its value of no effect ({f.value:g} {f.unit}): not named"
+            for f in pinned
+        ]
         + [
             f"{s.candidate.effect}: {', '.join(s.held_nominal)} not refitted (nominal): on these records they act "
             "much as torque offsets, and refitting them did not lower the error on the records held out in turn"
@@ -1010,6 +1019,15 @@ def _rigid_refit(
     fit = fit_columns(X, s.residual, weights, record=s.record, used=s.used)
     step = Step(rb[0], np.arange(X.shape[2]), 0.0, 0.0, 0.0)
     return extension_from_fit(plant, [step], fit, base_idx)
+
+
+def _pinned_at_null(findings: list[Finding], nulls: list[float]) -> list[Finding]:
+    """The findings whose headline ended on a bound that is its value of no effect (`Candidate.null`)."""
+    return [
+        f
+        for f, null in zip(findings, nulls, strict=True)
+        if f.at_bound is not None and abs(float(f.value) - null) <= 1e-12
+    ]
 
 
 def _findings(
