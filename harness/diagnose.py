@@ -233,6 +233,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         references=references,
         band_hz=_band_hz(cfg),
         record_offsets=record_offsets(cfg),
+        check_torque_signs=bool(opts.get("check_torque_signs", True)),
     )
     mjcf_name = f"{plant.name}_calibrated.xml"
     payload = result.to_dict(mjcf_name=mjcf_name)

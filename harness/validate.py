@@ -276,7 +276,14 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     _number(cfg, "data.validation_fraction", low=0.0, low_open=True, high=0.9)
     _number(cfg, "data.min_samples", integer=True, low=2)
     _number(cfg, "data.max_speed", low=0.0, low_open=True, optional=True)
-    for key in ("data.repair", "data.resample", "diagnose.record_offsets", "data.record_offsets"):
+    keys = (
+        "data.repair",
+        "data.resample",
+        "diagnose.record_offsets",
+        "data.record_offsets",
+        "diagnose.check_torque_signs",
+    )
+    for key in keys:
         if OmegaConf.select(cfg, key) is not None:
             _flag(cfg, key)
 

@@ -472,6 +472,19 @@ def test_a_flipped_torque_column_of_a_real_log_is_one_line_and_writes_nothing(tm
     )
     _one_line_error(proc, "tau_elbow (the file's -1 * tau_meas2) runs against the torque", "sign looks flipped")
     assert not (out / "diagnosis.json").exists()
+    # where the motion really needs the opposite torque, the user can say so and the diagnosis runs
+    proc = _cli(
+        "system=two_link",
+        "data=dfki_double_pendulum",
+        f"data.path=[{log},{log.with_name('trajectory_00.csv')}]",
+        "++data.columns.tau_elbow={column:tau_meas2,scale:-1}",
+        "diagnose.check_torque_signs=false",
+        "diagnose.recording=false",
+        f"hydra.run.dir={out}",
+        module="harness.diagnose",
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (out / "diagnosis.json").is_file()
 
 
 def test_estimator_options_of_another_estimator_are_one_line(tmp_path: Path) -> None:

@@ -321,7 +321,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals) -> None:
                     f"{src}: {column(i)} follows the torque the nominal model needs at {names[j]} (correlation "
                     f"{r[i, j]:.2f}{band}) and {column(j)} that at {names[i]} ({r[j, i]:.2f}), better than their own "
                     f"joints' ({r[i, i]:.2f}, {r[j, j]:.2f}): the two columns look swapped; map them the other way "
-                    "round in data.columns"
+                    "round in data.columns (or set diagnose.check_torque_signs=false)"
                 )
     for j in joints:
         size = float(b[:, j] @ a[:, j]) / max(float(na[j]) ** 2, 1e-300)
@@ -329,7 +329,8 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals) -> None:
             raise DataError(
                 f"{src}: {column(j)} runs against the torque the nominal model needs at {names[j]} along the motion "
                 f"(correlation {r[j, j]:.2f}{band}, {size:.2f} times its size): its sign looks flipped: negate its "
-                f"scale in the column mapping (data.columns.tau_{names[j]})"
+                f"scale in the column mapping (data.columns.tau_{names[j]}), or set diagnose.check_torque_signs=false "
+                "if the motion really needs the opposite torque"
             )
 
 
@@ -394,6 +395,7 @@ def diagnose(
     band_hz: float | None = None,
     record_offsets: bool = False,
     anomalies: Sequence[Anomaly] | None = None,
+    check_torque_signs: bool = True,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -414,6 +416,8 @@ def diagnose(
             Needs two or more training records; the torque_offset candidate is then never named.
         anomalies: the records' anomalies when found before (on the full-rate records of reduced ones);
             None finds them on `train` and `validation`.
+        check_torque_signs: refuse a record whose torque columns look flipped or swapped
+            (`check_torque_columns`).
 
     Returns:
         The diagnosis (see `Diagnosis`).
@@ -426,7 +430,8 @@ def diagnose(
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
     for rec in [*tr, *va]:
-        check_torque_columns(plant, rec.data, rec.signals)
+        if check_torque_signs:
+            check_torque_columns(plant, rec.data, rec.signals)
         moving = np.ones(plant.nv, bool)
         moving[still_joints(rec.data, plant.hinge)] = False
         s = rec.signals
