@@ -276,7 +276,7 @@ def test_a_slide_is_still_below_a_millimetre_not_below_a_centimetre() -> None:
     assert [(a.kind, a.joint) for a in still] == [("joint_never_moves", "elbow")] and "range_m" in still[0].detail
 
 
-def _shared_logs() -> list[Path]:
+def shared_logs() -> list[Path]:
     from conftest import SHARED_DATA
 
     files = sorted(SHARED_DATA.glob("dfki_double_pendulum_c*/*.csv"))
@@ -285,18 +285,25 @@ def _shared_logs() -> list[Path]:
     return files
 
 
-def _shared_record(path: Path, edit: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[Dataset, Signals]:
+def shared_log(path: Path) -> Dataset:
+    """One shared DFKI log read as `two_link` through its session's data config."""
     from omegaconf import OmegaConf
 
     from dynamics.plant import load_plant
     from envs.measured import read_measured
-    from identify.diagnose.diagnosis import _records
 
     conf = Path(__file__).resolve().parents[1] / "conf" / "data"
     name = "dfki_double_pendulum_c1" if "_c1" in str(path.parent) else "dfki_double_pendulum"
     columns = OmegaConf.to_container(OmegaConf.load(conf / f"{name}.yaml").columns)
+    return read_measured(path, load_plant("two_link"), columns=columns)  # type: ignore[arg-type]
+
+
+def _shared_record(path: Path, edit: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[Dataset, Signals]:
+    from dynamics.plant import load_plant
+    from identify.diagnose.diagnosis import _records
+
     plant = load_plant("two_link")
-    data = read_measured(path, plant, columns=columns)  # type: ignore[arg-type]
+    data = shared_log(path)
     if edit is not None:
         data = dataclasses.replace(data, tau=edit(data.tau.copy()))
     rec = _records(plant, [data], "butterworth", {"cutoff_hz": 10.0}, 5.0)[0]
@@ -312,7 +319,7 @@ def test_every_shared_log_passes_the_torque_column_check_and_a_flipped_or_swappe
     plant = load_plant("two_link")
     flipped = {"shoulder": 0, "elbow": 0}
     swapped = 0
-    files = _shared_logs()
+    files = shared_logs()
     for path in files:
         check_torque_columns(plant, *_shared_record(path))  # the logs as they are: no refusal
         for j, joint in enumerate(plant.joint_names):

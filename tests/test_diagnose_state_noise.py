@@ -52,28 +52,19 @@ def test_the_share_predicts_how_far_the_model_torque_s_scale_is_pulled_towards_z
 
 
 @pytest.mark.parametrize("system", list(SYSTEMS))
-def test_clean_logs_of_every_built_in_system_and_the_shared_logs_are_far_below_the_limit(system: str) -> None:
+def test_clean_logs_of_every_built_in_system_are_far_below_the_limit(system: str) -> None:
     plant, data = rollout(system, [], rng=np.random.default_rng(3), duration_s=10.0)
     share, _ = _share(plant, data)
     assert np.all(share[np.asarray(plant.actuated, bool)] < STATE_NOISE_SHARE / 100)
 
 
 def test_the_shared_logs_are_far_below_the_limit() -> None:
-    from conftest import SHARED_DATA
-    from omegaconf import OmegaConf
-
     from dynamics.plant import load_plant
-    from envs.measured import read_measured
+    from tests.test_diagnose_anomalies import shared_log, shared_logs
 
-    files = sorted(SHARED_DATA.glob("dfki_double_pendulum_c*/*.csv"))
-    if not files:
-        pytest.skip(f"real DFKI logs not found under {SHARED_DATA} (the project was cloned without ../shared)")
     plant = load_plant("two_link")
-    conf = {"_c0": "dfki_double_pendulum", "_c1": "dfki_double_pendulum_c1"}
-    for path in files:
-        name = conf[path.parent.name[-3:]]
-        columns = OmegaConf.to_container(OmegaConf.load(f"conf/data/{name}.yaml").columns)
-        share, _ = _share(plant, read_measured(path, plant, columns=columns), band_hz=5.0)  # type: ignore[arg-type]
+    for path in shared_logs():
+        share, _ = _share(plant, shared_log(path), band_hz=5.0)
         assert np.all(share < STATE_NOISE_SHARE / 100), (path.name, share)
 
 

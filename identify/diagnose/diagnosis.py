@@ -277,6 +277,13 @@ def _records(
     return out
 
 
+def _moving(plant: Plant, data: Dataset) -> np.ndarray:
+    """(nv,) False for the joints that never move in the record (`anomalies.still_joints`)."""
+    moving = np.ones(plant.nv, bool)
+    moving[still_joints(data, plant.hinge)] = False
+    return moving
+
+
 SIGN_CORRELATION = -0.5  # a measured torque this anti-correlated with the nominal model's ...
 SIGN_SIZE = -0.1  # ... and at least this large a share of it with the opposite sign has a flipped sign (C.1 143704's
 # shoulder, all but passive, carries 0.18 of the nominal torque)
@@ -284,22 +291,23 @@ SWAP_CORRELATION = 0.5  # two torques each correlated this well with the other j
 SWAP_MARGIN = 0.2  # ... and by this much better than with their own are swapped columns
 
 
-def check_torque_columns(plant: Plant, data: Dataset, signal: Signals) -> None:
+def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: np.ndarray | None = None) -> None:
     """Refuse a record whose torque column has the opposite sign of the torque the nominal model needs along
     the motion, or two columns that follow each other's joint: a model error moves the torque by a share of
     its size, never turns it around or over to another joint, and a fit would turn the model instead (negative
     masses, a gain of -1).
 
     Only joints that move in the record are compared (a joint held by static friction carries any torque
-    within its breakaway).
+    within its breakaway): `moving` (nv,), None to find them.
 
     Raises:
         DataError: the file, the column (as the file names it) and the two correlations.
     """
     a = signal.smooth(signal.tau_nominal)
     b = signal.smooth(signal.tau)
-    still = set(still_joints(data, plant.hinge))
-    joints = [int(j) for j in np.flatnonzero(plant.actuated) if j not in still]
+    if moving is None:
+        moving = _moving(plant, data)
+    joints = [int(j) for j in np.flatnonzero(np.asarray(plant.actuated, bool) & moving)]
     a = a - a.mean(axis=0)
     b = b - b.mean(axis=0)
     na, nb = np.linalg.norm(a, axis=0), np.linalg.norm(b, axis=0)
@@ -430,10 +438,9 @@ def diagnose(
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
     for rec in [*tr, *va]:
+        moving = _moving(plant, rec.data)
         if check_torque_signs:
-            check_torque_columns(plant, rec.data, rec.signals)
-        moving = np.ones(plant.nv, bool)
-        moving[still_joints(rec.data, plant.hinge)] = False
+            check_torque_columns(plant, rec.data, rec.signals, moving)
         s = rec.signals
         share = state_noise_share(
             plant, rec.data, rec.states, s.tau_nominal, s.smooth, derivatives, options, np.random.default_rng(0)
