@@ -45,6 +45,7 @@ from identify.diagnose import (
     find_anomalies,
     load_author_model,
 )
+from identify.diagnose.state_noise import check_full_rate_state_noise
 from identify.excitation_check import check_excitation
 
 __all__ = ["CONF_DIR", "data_paths", "main", "record_offsets", "reference_models", "run"]
@@ -198,7 +199,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     datasets, excluded = _without_stuck_torques(datasets, anomalies)
     if excluded:
         stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")
-    reduced = _reduce(datasets, derivatives, derivative_options, cfg, stage)
+    reduced = _reduce(plant, datasets, derivatives, derivative_options, cfg, stage)
     if reduced is not None:
         datasets, derivatives, derivative_options = reduced
     validation = cfg.data.get("validation")
@@ -281,9 +282,16 @@ def _without_stuck_torques(datasets: list[Dataset], anomalies: list[Any]) -> tup
 
 
 def _reduce(
-    datasets: list[Dataset], method: str, options: dict[str, Any], cfg: DictConfig, stage: Callable[[str], None]
+    plant: Plant,
+    datasets: list[Dataset],
+    method: str,
+    options: dict[str, Any],
+    cfg: DictConfig,
+    stage: Callable[[str], None],
 ) -> tuple[list[Dataset], str, dict[str, Any]] | None:
     """Long logs thinned to `diagnose.max_rows` (states derived at the full rate first); None when they fit.
+    Each log's angle noise is checked against the model torque at the full rate first
+    (`check_full_rate_state_noise`): the thinned, 'given' states no longer show it.
 
     The kept rate never falls below 2.5 x the larger of the analysis band and twice the motion's own bandwidth
     (`excitation_bandwidth_hz`), so the thinned states and torques keep everything the motion excites.
@@ -304,6 +312,8 @@ def _reduce(
         # the motion's bandwidth from (at most) its first 2^20 rows: a spectrum of the whole log is ~10x its memory
         keep_hz = max(band, 2.0 * excitation_bandwidth_hz(data.q[: 1 << 20], fs))
         k = reduction_factor(total, fs, max_rows=int(limit), band_hz=keep_hz)
+        if k > 1:
+            check_full_rate_state_noise(plant, data, method, options, band_hz=_band_hz(cfg))
         stage(
             f"{Path(data.source).name}: {data.n_samples} rows at {fs:.4g} Hz; states at the full rate, then every "
             f"{k}th row ({fs / k:.4g} Hz; states and torque anti-aliased at {fs / k / 2.5:.3g} Hz, the motion "

@@ -87,3 +87,47 @@ def test_a_log_with_noisy_angles_is_refused_with_a_cut_off_that_the_diagnosis_th
     assert 3.0 < cutoff < 8.0
     dg = diagnose(plant, [train], [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": cutoff})
     assert not [f for f in dg.findings if f.effect == "torque_gain"]
+
+
+def test_a_long_noisy_log_is_refused_before_it_is_thinned(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A log past `diagnose.max_rows` has its states derived at the full rate and then every k-th row kept
+    ('given' states), where the angles no longer show their noise: the check runs at the full rate first. The
+    same logs, kept whole, are refused by the diagnosis itself with the same reason; nothing is written."""
+    import harness.diagnose as cli
+    from envs.dataset import write_csv
+    from tests.conftest import compose_config
+
+    paths = []
+    for seed, duration in ((2, 10.0), (3, 5.0)):
+        _, data = _noisy("two_link", 0.01, seed=seed, duration_s=duration)
+        paths.append(tmp_path / f"log{seed}.csv")
+        write_csv(data, paths[-1])
+    listed = ",".join(str(p) for p in paths)
+    for rows in ("1000", "null"):
+        out = tmp_path / f"out_{rows}"
+        cfg = compose_config(
+            [
+                "system=two_link",
+                f"data.path=[{listed}]",
+                f"output_dir={out}",
+                "diagnose.references=null",
+                "diagnose.recording=false",
+                f"diagnose.max_rows={rows}",
+            ],
+            config_name="diagnose",
+        )
+        with pytest.raises(DataError, match=r"log2\.csv: the angles' noise .* cut-off 10 Hz.*to about [\d.]+ Hz"):
+            cli.run(cfg)
+        assert not out.exists() or not any(out.iterdir())
+
+
+def test_the_full_rate_check_passes_a_clean_log_and_refuses_a_noisy_one() -> None:
+    from dynamics.plant import load_plant
+    from identify.diagnose.state_noise import check_full_rate_state_noise
+
+    plant, data = rollout("two_link", [], rng=np.random.default_rng(4), duration_s=10.0)
+    check_full_rate_state_noise(plant, data, "butterworth", OPTIONS, band_hz=None)  # clean: no refusal
+    _, noisy = _noisy("two_link", 0.01, seed=2)
+    with pytest.raises(DataError, match="the angles' noise"):
+        check_full_rate_state_noise(load_plant("two_link"), noisy, "butterworth", OPTIONS, band_hz=None)
+    check_full_rate_state_noise(plant, noisy, "given", {}, band_hz=None)  # states not from the angles: nothing to check

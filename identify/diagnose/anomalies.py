@@ -18,7 +18,7 @@ import numpy as np
 
 from envs.dataset import Dataset
 
-__all__ = ["Anomaly", "describe_outside", "find_anomalies", "outside_training", "still_joints"]
+__all__ = ["Anomaly", "describe_outside", "find_anomalies", "moving_joints", "outside_training", "still_joints"]
 
 STILL_RANGE = 0.01  # a hinge whose angle spans less than this in a file never moves there [rad]
 STILL_SLIDE_RANGE = 1e-3  # ... a slide whose position spans less than this [m]
@@ -91,6 +91,13 @@ def still_joints(data: Dataset, hinge: np.ndarray | None = None) -> list[int]:
     """Indices of the joints that never move in the file: a hinge's angle spans less than `STILL_RANGE`, a
     slide's position less than `STILL_SLIDE_RANGE` (`hinge`: (nv,) True for hinges; None: every joint a hinge)."""
     return [j for j in range(data.q.shape[1]) if _span(data.q[:, j]) < _still_range(hinge, j)]
+
+
+def moving_joints(data: Dataset, hinge: np.ndarray | None = None) -> np.ndarray:
+    """(nv,) False for the joints that never move in the file (`still_joints`), True for the others."""
+    moving = np.ones(data.q.shape[1], bool)
+    moving[still_joints(data, hinge)] = False
+    return moving
 
 
 def find_anomalies(datasets: list[Dataset], hinge: np.ndarray | None = None) -> list[Anomaly]:

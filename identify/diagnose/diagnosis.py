@@ -25,7 +25,14 @@ from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states, state_cutoff_hz
-from identify.diagnose.anomalies import Anomaly, describe_outside, find_anomalies, outside_training, still_joints
+from identify.diagnose.anomalies import (
+    Anomaly,
+    describe_outside,
+    find_anomalies,
+    moving_joints,
+    outside_training,
+    still_joints,
+)
 from identify.diagnose.calibrate import (
     Extension,
     applied_from_measured,
@@ -277,13 +284,6 @@ def _records(
     return out
 
 
-def _moving(plant: Plant, data: Dataset) -> np.ndarray:
-    """(nv,) False for the joints that never move in the record (`anomalies.still_joints`)."""
-    moving = np.ones(plant.nv, bool)
-    moving[still_joints(data, plant.hinge)] = False
-    return moving
-
-
 SIGN_CORRELATION = -0.5  # a measured torque this anti-correlated with the nominal model's ...
 SIGN_SIZE = -0.1  # ... and at least this large a share of it with the opposite sign has a flipped sign (C.1 143704's
 # shoulder, all but passive, carries 0.18 of the nominal torque)
@@ -306,7 +306,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
     a = signal.smooth(signal.tau_nominal)
     b = signal.smooth(signal.tau)
     if moving is None:
-        moving = _moving(plant, data)
+        moving = moving_joints(data, plant.hinge)
     joints = [int(j) for j in np.flatnonzero(np.asarray(plant.actuated, bool) & moving)]
     a = a - a.mean(axis=0)
     b = b - b.mean(axis=0)
@@ -438,7 +438,7 @@ def diagnose(
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
     for rec in [*tr, *va]:
-        moving = _moving(plant, rec.data)
+        moving = moving_joints(rec.data, plant.hinge)
         if check_torque_signs:
             check_torque_columns(plant, rec.data, rec.signals, moving)
         s = rec.signals

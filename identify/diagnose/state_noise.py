@@ -26,8 +26,10 @@ from dynamics.plant import Plant
 from dynamics.torque import joint_torque
 from envs.dataset import Dataset
 from identify.derivatives import States, derive_states, state_cutoff_hz
+from identify.diagnose.anomalies import moving_joints
+from identify.diagnose.candidates import band_lowpass
 
-__all__ = ["STATE_NOISE_SHARE", "angle_noise", "check_state_noise", "state_noise_share"]
+__all__ = ["STATE_NOISE_SHARE", "angle_noise", "check_full_rate_state_noise", "check_state_noise", "state_noise_share"]
 
 STATE_NOISE_SHARE = 0.05  # most of the model torque's variance (in the band) that may be the angles' noise
 _THIRD_DIFFERENCE_GAIN = np.sqrt(20.0)  # std of the third difference of white noise of std 1
@@ -134,3 +136,42 @@ def check_state_noise(
         f"{share[j]:.2g}) (errors in the variables)"
         f"{lower}"
     )
+
+
+_FULL_RATE_ROWS = 1 << 18  # rows of a long log the full-rate check reads (its noise and motion are stationary enough)
+
+
+def check_full_rate_state_noise(
+    plant: Plant,
+    data: Dataset,
+    method: str,
+    options: dict[str, Any],
+    *,
+    band_hz: float | None = None,
+    rng: np.random.Generator | None = None,
+) -> None:
+    """`check_state_noise` on a log that is about to be thinned (`diagnose.max_rows`): once its states are derived
+    and every k-th row kept ('given' states), the angles no longer show their noise, so the check runs here, on
+    the log as logged (its first `_FULL_RATE_ROWS` rows), with the derivative filter and band the states come from.
+
+    Raises:
+        DataError: as `check_state_noise`.
+    """
+    if method in _UNFILTERED:
+        return
+    head = data if data.n_samples <= _FULL_RATE_ROWS else data.slice(0, _FULL_RATE_ROWS)
+    states = derive_states(head, method, **options)
+    valid = np.flatnonzero(states.valid)
+    if valid.size < 10:
+        return
+    rows = np.arange(valid[0], valid[-1] + 1)
+    tau_nominal = joint_torque(plant, states.q[rows], states.dq[rows], states.ddq[rows])[0]
+    fs = 1.0 / head.dt
+
+    def smooth(x: np.ndarray) -> np.ndarray:
+        return band_lowpass(x, fs, band_hz)
+
+    rng = rng or np.random.default_rng(0)
+    share = state_noise_share(plant, head, states, tau_nominal, smooth, method, options, rng)
+    moving = moving_joints(data, plant.hinge)
+    check_state_noise(plant, head, share, method, options, moving=moving, band_hz=band_hz)
