@@ -43,8 +43,9 @@ class Actuator:
         gain: fixed gain (force per unit ctrl).
         bias: (3,) affine bias b0, b1, b2 (force, per length, per velocity).
         ctrl_range: (2,) ctrl limits, or None where unlimited.
-        torque_limit: largest |joint torque| it can apply [N m]: force range (and, for a motor, ctrl range)
-            times gear, the joint's `actuatorfrcrange` where tighter; inf where nothing limits it.
+        torque_limit: largest |joint torque| it can apply in both directions [N m]: force range (and, for a
+            motor, ctrl range times gain) times gear, the joint's `actuatorfrcrange` where tighter, each range's
+            smaller side (0 for a one-sided range); inf where nothing limits it.
     """
 
     name: str
@@ -96,13 +97,20 @@ def _actuator(m: mujoco.MjModel, a: int, where: str) -> Actuator:
     kind = _kind(gain, int(m.actuator_biastype[a]), bias)
     limit = np.inf
     if m.actuator_forcelimited[a]:
-        limit = float(np.max(np.abs(m.actuator_forcerange[a]))) * abs(gear)
+        limit = _two_sided(m.actuator_forcerange[a]) * abs(gear)
     ctrl_range = np.asarray(m.actuator_ctrlrange[a], dtype=float).copy() if m.actuator_ctrllimited[a] else None
     if kind == "motor" and ctrl_range is not None:
-        limit = min(limit, float(np.max(np.abs(ctrl_range))) * abs(gain * gear))
+        limit = min(limit, _two_sided(ctrl_range) * abs(gain * gear))
     if m.jnt_actfrclimited[jid]:
-        limit = min(limit, float(np.max(np.abs(m.jnt_actfrcrange[jid]))))
+        limit = min(limit, _two_sided(m.jnt_actfrcrange[jid]))
     return Actuator(name, int(m.jnt_dofadr[jid]), kind, gear, gain, bias, ctrl_range, limit)
+
+
+def _two_sided(bounds: np.ndarray) -> float:
+    """The largest magnitude a range [lo, hi] allows in both directions: min(-lo, hi), 0 where it is one-sided
+    (a range "0 20" pushes one way only; a symmetric bound must not take 20 from it)."""
+    lo, hi = float(bounds[0]), float(bounds[1])
+    return max(min(-lo, hi), 0.0)
 
 
 @dataclass(frozen=True)

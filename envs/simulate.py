@@ -56,7 +56,8 @@ def simulate_tracking(
         sensor: sample rate, noise, quantisation and sensor-side effects.
         rng: source of the sensor noise.
         nominal: the model used for feedforward and gains (defaults to `plant`).
-        bandwidth_hz, damping_ratio: closed-loop bandwidth and damping of the PD loop about q = 0.
+        bandwidth_hz, damping_ratio: closed-loop bandwidth and damping of the PD loop (its gains are the
+            nominal mass matrix along the reference times omega^2 and 2 zeta omega).
         hard_friction: simulate `frictionloss` as Coulomb friction (`_hard_friction`), not MuJoCo's default
             soft constraint.
 
@@ -71,14 +72,18 @@ def simulate_tracking(
     t = _sample_times(duration_s, sensor.sample_rate_hz)
     q_ref, dq_ref, ddq_ref = reference.evaluate(t)
     tau_ff = inverse_dynamics(nominal, q_ref, dq_ref, ddq_ref)
-    m_diag = _mass_diagonal(nominal, q_ref[0])
+    # the feedback is shaped by the nominal mass matrix along the reference (computed torque): per-joint gains
+    # from its diagonal ignore the coupling, and M^-1 of an outstretched arm is far larger than 1 / M_ii, so the
+    # sampled loop's velocity gain 2 zeta omega h lambda(M^-1 Kd) passed 2 (a limit cycle at the Nyquist rate) at
+    # 200 Hz on the two-link arm
+    mass = _mass_matrices(nominal, q_ref)
     omega = 2 * np.pi * bandwidth_hz
-    kp, kd = m_diag * omega**2, 2 * damping_ratio * omega * m_diag
+    kp, kd = omega**2, 2 * damping_ratio * omega
 
     actuation = plant.actuation
 
     def control(k: int, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        tau = tau_ff[k] + kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq)
+        tau = tau_ff[k] + mass[k] @ (kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq))
         return actuation.ctrl_for_reference(tau, q, dq, q_ref[k], dq_ref[k])
 
     targets = None
@@ -135,6 +140,19 @@ def _sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
     if duration_s <= 0:
         raise ValueError(f"duration_s must be > 0, got {duration_s}")
     return np.arange(int(round(duration_s * rate_hz))) / rate_hz
+
+
+def _mass_matrices(plant: Plant, q: np.ndarray) -> np.ndarray:
+    """(N, nv, nv) the joint-space mass matrix (armature included) at each pose of q (N, nv)."""
+    m, d = plant.mj_model, mujoco.MjData(plant.mj_model)
+    out = np.zeros((len(q), m.nv, m.nv))
+    for k, pose in enumerate(q):
+        d.qpos[:] = pose
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)
+        mujoco.mj_fullM(m, d, out[k])
+    return out
 
 
 def _mass_diagonal(plant: Plant, q: np.ndarray) -> np.ndarray:
@@ -328,6 +346,29 @@ def _interval(
     return first
 
 
+def _pressing(d: mujoco.MjData, k: int, touching: dict[tuple[int, int], list[int]]) -> None:
+    """Count sample k for each geom pair of d's contacts that carries a normal force (d after a forward pass)."""
+    for c in d.contact[: d.ncon]:
+        if c.efc_address < 0 or d.efc_force[c.efc_address] == 0.0:
+            continue
+        pair = (int(min(c.geom1, c.geom2)), int(max(c.geom1, c.geom2)))
+        seen = touching.setdefault(pair, [0, k])
+        seen[0] += 1
+
+
+def _contact_report(m: mujoco.MjModel, t: np.ndarray, touching: dict[tuple[int, int], list[int]]) -> list[dict]:
+    """One entry per geom pair that pressed: both geoms (and their bodies) by name, samples, first time [s]."""
+
+    def name(g: int) -> str:
+        body = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])) or f"body{m.geom_bodyid[g]}"
+        return f"{mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f'geom{g}'} ({body})"
+
+    return [
+        {"geoms": [name(a), name(b)], "samples": n, "first_t_s": float(t[first])}
+        for (a, b), (n, first) in sorted(touching.items(), key=lambda kv: -kv[1][0])
+    ]
+
+
 def _run(
     plant: Plant,
     t: np.ndarray,
@@ -362,6 +403,7 @@ def _run(
     kind = mujoco.mjtState.mjSTATE_INTEGRATION
     start = np.empty(mujoco.mj_stateSize(m, kind))
     refined: list[int] = []
+    touching: dict[tuple[int, int], list[int]] = {}  # geom pair -> [samples with a contact force, first sample]
     d.qpos[:], d.qvel[:] = q0, dq0
     for k, fine in enumerate(_setpoints(targets, t, m.opt.timestep, substeps)):
         state = d.qpos.copy(), d.qvel.copy()
@@ -371,6 +413,8 @@ def _run(
         clamped[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
         applied[k] = clamped[k]
         constraint[k] = d.qfrc_constraint
+        if d.ncon:
+            _pressing(d, k, touching)
         damping = implicit
         if implicit is not None and dropped is not None:
             damping = implicit - np.bincount(joints, dropped * _at_force_range(m, d), minlength=nv)
@@ -416,5 +460,6 @@ def _run(
             "refined_samples": refined,
             # joint limits, contacts and frictionloss act through constraints: the largest such torque [N m]
             "constraint_torque_max": np.abs(constraint).max(axis=0).tolist(),
+            "contacts": _contact_report(m, t, touching),
         },
     )

@@ -53,16 +53,23 @@ class Limits:
         For `q` the ratio is the worst excursion from the range's centre over the half-range, with an
         out-of-range sample giving > 1 (an unlimited joint gives 0).
         """
+        out = {k: float(v.max()) for k, v in self.joint_ratios(q, dq, ddq, tau).items()}
+        if self.clearance is not None:
+            out["clearance"] = self.clearance.ratio(q)
+        return out
+
+    def joint_ratios(
+        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray | None = None, tau: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
+        """Each joint's worst use (nv,) of each joint bound over the samples (N, nv): as `ratios`, by joint."""
         finite = np.isfinite(self.q_min) & np.isfinite(self.q_max)
         center = np.where(finite, 0.5 * (np.where(finite, self.q_min, 0) + np.where(finite, self.q_max, 0)), 0.0)
         half = 0.5 * (self.q_max - self.q_min)
-        out = {"q": float(np.max(np.abs(q - center) / half)), "dq": float(np.max(np.abs(dq) / self.dq_max))}
+        out = {"q": np.max(np.abs(q - center) / half, axis=0), "dq": np.max(np.abs(dq) / self.dq_max, axis=0)}
         if ddq is not None:
-            out["ddq"] = float(np.max(np.abs(ddq) / self.ddq_max))
+            out["ddq"] = np.max(np.abs(ddq) / self.ddq_max, axis=0)
         if tau is not None:
-            out["tau"] = float(np.max(np.abs(tau) / self.tau_max))
-        if self.clearance is not None:
-            out["clearance"] = self.clearance.ratio(q)
+            out["tau"] = np.max(np.abs(tau) / self.tau_max, axis=0)
         return out
 
     def binding(self, ratios: dict[str, float], q: np.ndarray, dq: np.ndarray) -> str:
@@ -94,7 +101,10 @@ def limits_for(
     torque_margin: float = 0.9,
     clearance_m: float | None = None,
 ) -> Limits:
-    """Limits from the MJCF (range, actuator torque) and the config (speed, acceleration).
+    """Limits from the MJCF (range, actuator torque, a servo's ctrlrange) and the config (speed, acceleration).
+
+    A position servo's ctrlrange (over its gear) narrows its joint's range and a velocity servo's its speed:
+    the servo clamps its target there, so a design beyond it would not be the motion that runs.
 
     Args:
         velocity: speed bound per joint (or one for all) [rad/s].
@@ -106,6 +116,15 @@ def limits_for(
     """
     n = plant.nv
     lo, hi = plant.q_range[:, 0].copy(), plant.q_range[:, 1].copy()
+    dq_max = np.broadcast_to(np.asarray(velocity, dtype=float), (n,)).copy()
+    for a in plant.actuation.actuators:  # a servo's ctrlrange clamps its target: the joint goes no further
+        if a.ctrl_range is None or not a.is_servo:
+            continue
+        reach = np.sort(a.ctrl_range / a.gear)
+        if a.kind == "position":
+            lo[a.joint], hi[a.joint] = max(lo[a.joint], reach[0]), min(hi[a.joint], reach[1])
+        else:
+            dq_max[a.joint] = min(dq_max[a.joint], max(min(-reach[0], reach[1]), 0.0))
     finite = np.isfinite(lo) & np.isfinite(hi)
     shrink = range_margin * (hi - lo)
     lo[finite] += shrink[finite]
@@ -114,7 +133,7 @@ def limits_for(
     return Limits(
         q_min=lo,
         q_max=hi,
-        dq_max=np.broadcast_to(np.asarray(velocity, dtype=float), (n,)).copy(),
+        dq_max=dq_max,
         ddq_max=np.broadcast_to(np.asarray(acceleration, dtype=float), (n,)).copy(),
         tau_max=tau,
         joint_names=plant.joint_names,

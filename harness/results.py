@@ -74,7 +74,19 @@ def summary_table(results: dict[str, Any]) -> str:
     lines.append(
         f"excitation {ex['name']}: cond(X'X) = {ex['cond_XtX']:.4g} (column-normalised {ex['cond_W_colnorm']:.4g}), "
         f"{ex['harmonics']} harmonics, period {ex['period_s']:g} s, limits {'hold' if ex['limits_ok'] else 'BROKEN'}"
+        + ("" if ex.get("simulated", {}).get("holds", True) else " on the design, not in the motion that ran")
     )
+    sim = ex.get("simulated")
+    if sim is not None and not sim["holds"]:
+        track = sim.get("tracking_error_max", {})
+        worst = max(track, key=lambda j: track[j]) if track else None
+        lines.append(
+            f"WARNING: the simulated motion breaks the limits the design keeps: {sim['worst']}"
+            + (f"; largest tracking error {track[worst]:.3g} rad ({worst})" if worst else "")
+            + ": the motion that ran is not the design (a servo lags its target, an actuator saturates, or the "
+            "physics step is too coarse for the tracking loop: check the MJCF's ctrlrange, forcerange and timestep); "
+            "the data hold the motion that ran"
+        )
     poor = ex.get("poorly_excited", {})
     if poor.get("directions"):
         lines.append(

@@ -18,6 +18,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import BaseParameters
+from dynamics.errors import ModelError
 from dynamics.plant import Plant, load_plant
 from dynamics.prior import Prior, PriorSpec, make_prior
 from dynamics.regressor import ParameterModel
@@ -65,6 +66,52 @@ def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Data
     t = grid(design, 4000)
     q, dq, ddq = design.evaluate(t)
     return limits.ratios(q, dq, ddq, joint_torque(plant, q, dq, ddq)[0])
+
+
+# the simulated motion may use a bound this much beyond the design before it counts as leaving the limits: the
+# tracking loop's error (feedforward from the prior, not the truth) adds a few per mille to a design at its bound
+SIMULATED_MARGIN = 0.05
+# the start-up the check of the simulated motion leaves out [s]: the simulation starts in the design's state, and
+# a servo (which has no velocity feed-forward) brakes that initial speed at its force range for a few samples
+# (57,000 rad/s^2 in the first sample of the Gen3's wrist); six time constants of the 4 Hz tracking loop
+SETTLE_S = 0.25
+
+
+def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torque_driven: bool) -> dict[str, Any]:
+    """What the simulation really did against the limits, after the first `SETTLE_S`: each bound's worst use by
+    the simulated motion (`ratios`), each joint's largest distance from the design's angles
+    (`tracking_error_max`, position designs) and whether every bound held within `SIMULATED_MARGIN` (`holds`),
+    with the worst one named (`worst`).
+
+    Raises:
+        ModelError: the motion pressed geoms together: contact forces are in the torque and no model has them.
+    """
+    contacts = data.meta.get("contacts", [])
+    if contacts:
+        c = contacts[0]
+        raise ModelError(
+            f"the simulated motion presses geom {c['geoms'][0]} against {c['geoms'][1]} in {c['samples']} of "
+            f"{data.n_samples} samples (first at t = {c['first_t_s']:.3f} s; {len(contacts)} pair(s) in all): "
+            "contact forces enter the torque and no model has them; keep them apart (a larger "
+            "system.limits.clearance_m, which also covers world geoms only where they are the floor plane) or take "
+            'them out of collision (contype="0" conaffinity="0")'
+        )
+    rows = data.time >= data.time[0] + min(SETTLE_S, 0.5 * float(data.time[-1] - data.time[0]))
+    q, dq, ddq, tau = (x[rows] for x in (data.meta["q_true"], data.meta["dq_true"], data.ddq, data.meta["tau_applied"]))
+    ratios = limits.ratios(q, dq, ddq, tau)
+    out: dict[str, Any] = {"ratios": ratios, "from_s": float(data.time[rows][0] - data.time[0])}
+    if not torque_driven:
+        err = np.abs(q - design.evaluate(data.time[rows])[0]).max(axis=0)
+        out["tracking_error_max"] = dict(zip(limits.joint_names, err.tolist(), strict=True))
+    key = max(ratios, key=lambda k: ratios[k])
+    out["holds"] = bool(ratios[key] <= 1.0 + SIMULATED_MARGIN)
+    if key == "clearance":
+        out["worst"] = f"{limits.binding(ratios, q, dq)} at {ratios[key]:.3g} x its bound"
+    else:
+        per_joint = limits.joint_ratios(q, dq, ddq, tau)[key]
+        j = int(np.argmax(per_joint))
+        out["worst"] = f"{key}[{limits.joint_names[j]}] at {per_joint[j]:.3g} x its bound"
+    return out
 
 
 def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any]:
@@ -135,6 +182,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         design = design_from_config(cfg, nominal, cfg.excitation.name, rng_design, progress=printer("excitation"))
     with _timed(timing, "simulation"):
         data = simulate_design(plant, design, cfg, sensor, rng_noise, float(cfg.system.periods), nominal=prior.plant)
+        motion = simulated_motion(design, limits, data, bool(cfg.system.torque_driven))
     with _timed(timing, "identification"):
         est, problem = _identify(cfg, data, model, base, design, prior)
         beta_true = base.project(model.truth())
@@ -145,6 +193,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         val_data = simulate_design(
             plant, val_design, cfg, sensor, rng_val, float(cfg.validation.periods), nominal=prior.plant
         )
+        val_motion = simulated_motion(val_design, limits, val_data, bool(cfg.system.torque_driven))
         val_states = _sliding(
             cfg, model, derive_states(val_data, cfg.identify.derivatives, **_derivative_options(cfg, val_design))
         )
@@ -172,8 +221,9 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
             "harmonics": design.harmonics,
             "base_freq_hz": design.base_freq_hz,
             "period_s": design.period_s,
-            "limits_ok": bool(max(ratios.values()) <= 1.0 + 1e-9),
+            "limits_ok": bool(max(ratios.values()) <= 1.0 + 1e-9),  # the design's; `simulated`: the motion's
             "limit_ratios": ratios,
+            "simulated": motion,  # the motion that ran: the tracking loop or the physics may not follow the design
             "limits": limits.to_dict(),
             "clearance": None
             if limits.clearance is None
@@ -200,6 +250,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
             "noise_std": dict(zip(plant.joint_names, noise_std.tolist(), strict=True)),
             "unit": {n: "N m" if hinge else "N" for n, hinge in zip(plant.joint_names, plant.hinge, strict=True)},
             "samples": int(rows.sum()),
+            "simulated": val_motion,
         },
         "data": {
             "samples": data.n_samples,

@@ -194,16 +194,32 @@ def _check_harmonics(cfg: DictConfig) -> None:
 
 
 def check_driven(plant: Plant) -> None:
-    """Refuse, for a simulated run, a model none of whose joints an actuator drives: nothing could excite it.
+    """Refuse, for a simulated run, a model none of whose joints an actuator drives (nothing could excite it), or
+    with an actuator that gives torque of one sign only (a ctrlrange "0 20", a zero gain).
 
     Raises:
-        ConfigError: naming the model and how to add actuators.
+        ConfigError: naming the model (and the actuator) and how to fix it.
     """
     if not any(bool(a) for a in plant.actuated):
         raise ConfigError(
             f"{plant.path}: no joint of {plant.name} is driven (the model has no <actuator> on its joints), so "
             "nothing can excite it: add a motor per joint, e.g. <actuator><motor joint='j1' ctrlrange='-5 5'/>"
             "</actuator>"
+        )
+    for a in plant.actuation.actuators:
+        if a.torque_limit > 0:
+            continue
+        if a.gain == 0:
+            raise ConfigError(
+                f"{plant.path}: actuator {a.name!r} on joint {plant.joint_names[a.joint]!r} has gain 0 (gainprm): "
+                "it applies no torque, so nothing can excite the joint: give it a non-zero gain"
+            )
+        ctrl = "unlimited" if a.ctrl_range is None else f"[{a.ctrl_range[0]:g}, {a.ctrl_range[1]:g}]"
+        raise ConfigError(
+            f"{plant.path}: actuator {a.name!r} can drive joint {plant.joint_names[a.joint]!r} one way only "
+            f"(gain {a.gain:g}, gear {a.gear:g}, ctrlrange {ctrl}, its forcerange and the joint's actuatorfrcrange "
+            "leave no torque of both signs), but an excitation swings each joint both ways: give it a range "
+            "about zero (ctrlrange='-5 5') and a non-zero gain"
         )
 
 

@@ -59,8 +59,10 @@ def simulate_model(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Track `reference` with the model of standard parameters `theta` (Pinocchio, semi-implicit Euler).
 
-    The controller is the harness's: feedforward from the model's own inverse dynamics along the reference
-    plus PD feedback at `bandwidth_hz`, held over each sample.
+    The controller is like the harness's: feedforward from the model's own inverse dynamics along the reference
+    plus PD feedback at `bandwidth_hz`, held over each sample, its gains from the mass matrix's diagonal at the
+    first pose (the harness shapes them by the whole matrix along the reference); a simulation that leaves its
+    reference is not used as an instrument (`_tracks`).
 
     Args:
         model: the parameter model (rigid body, armature, friction and offset columns).

@@ -1,0 +1,141 @@
+"""What the simulation really did against the limits the design keeps: a one-sided or narrow actuator range is
+taken into the limits (or refused), the simulated motion is checked against them, and contacts are refused."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dynamics.errors import ModelError
+from dynamics.plant import plant_from_xml
+from envs.sensors import SensorModel
+from envs.simulate import simulate_tracking
+from excitation.limits import limits_for
+from harness.results import summary_table
+from harness.run import simulated_motion
+from harness.validate import ConfigError, check_driven
+
+_ONE = """<mujoco model="{name}"><compiler angle="radian"/><option timestep="0.002"/><worldbody>{world}
+  <body name="arm"><joint name="j0" axis="0 1 0" range="-2 2"/>
+    <geom name="rod" type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="1"/></body></worldbody>
+  <actuator>{actuator}</actuator></mujoco>"""
+
+
+def _plant(tmp_path: Path, actuator: str, world: str = "", name: str = "one"):  # type: ignore[no-untyped-def]
+    return plant_from_xml(_ONE.format(name=name, world=world, actuator=actuator), name, tmp_path)
+
+
+class _Swing:
+    """q = a sin(w t) about zero."""
+
+    def __init__(self, a: float, freq_hz: float = 0.5) -> None:
+        self.a, self.w = a, 2 * np.pi * freq_hz
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        wt = self.w * t[:, None]
+        return self.a * np.sin(wt), self.a * self.w * np.cos(wt), -self.a * self.w**2 * np.sin(wt)
+
+
+def _track(plant, reference: _Swing, duration_s: float = 2.0):  # type: ignore[no-untyped-def]
+    sensor = SensorModel(sample_rate_hz=500)
+    return simulate_tracking(plant, reference, duration_s=duration_s, sensor=sensor, rng=np.random.default_rng(0))
+
+
+@pytest.mark.parametrize(
+    ("actuator", "limit"),
+    [
+        ('<motor joint="j0" ctrlrange="-5 20"/>', 5.0),  # the smaller side: a symmetric bound of 20 broke it
+        ('<motor joint="j0" ctrlrange="-20 20" gear="-2"/>', 40.0),
+        ('<motor joint="j0" forcelimited="true" forcerange="-3 8"/>', 3.0),
+        ('<general joint="j0" gainprm="2" ctrlrange="-1 4"/>', 2.0),
+    ],
+)
+def test_the_torque_limit_is_what_the_actuator_gives_both_ways(tmp_path: Path, actuator: str, limit: float) -> None:
+    plant = _plant(tmp_path, actuator)
+    assert plant.tau_limit[0] == pytest.approx(limit)
+    check_driven(plant)
+
+
+@pytest.mark.parametrize(
+    ("actuator", "message"),
+    [
+        ('<motor name="lift" joint="j0" ctrlrange="0 20"/>', r"actuator 'lift' can drive joint 'j0' one way only"),
+        ('<motor name="lift" joint="j0" forcelimited="true" forcerange="-8 0"/>', r"'lift' can drive joint 'j0' one"),
+        ('<general name="lift" joint="j0" gainprm="0" ctrlrange="-1 1"/>', r"'lift' on joint 'j0' has gain 0"),
+    ],
+)
+def test_an_actuator_that_cannot_drive_both_ways_is_refused_by_name(
+    tmp_path: Path, actuator: str, message: str
+) -> None:
+    plant = _plant(tmp_path, actuator)
+    with pytest.raises(ConfigError, match=message):
+        check_driven(plant)
+
+
+def test_a_servos_ctrlrange_narrows_the_range_and_speed_the_design_may_use(tmp_path: Path) -> None:
+    """A position servo clamps its target to ctrlrange / gear, a velocity servo its speed: a design over the
+    joint's own range (+-2 rad) ran as a motion clipped at +-0.5 rad, and the limits said they held."""
+    position = _plant(tmp_path, '<position joint="j0" kp="50" ctrlrange="-1 0.6" gear="2"/>', name="pos")
+    limits = limits_for(position, velocity=3.0, acceleration=10.0, range_margin=0.0)
+    assert (limits.q_min[0], limits.q_max[0]) == pytest.approx((-0.5, 0.3))
+    velocity = _plant(tmp_path, '<velocity joint="j0" kv="5" ctrlrange="-4 1"/>', name="vel")
+    limits = limits_for(velocity, velocity=3.0, acceleration=10.0, range_margin=0.0)
+    assert limits.dq_max[0] == pytest.approx(1.0) and (limits.q_min[0], limits.q_max[0]) == (-2.0, 2.0)
+
+
+def test_a_motion_that_breaks_the_limits_is_named_and_flagged(tmp_path: Path) -> None:
+    """A swing that needs more torque than the motor has: the motion that ran lags the design, and the check
+    of the simulated motion names the broken bound where the design's own check held."""
+    plant = _plant(tmp_path, '<motor joint="j0" ctrlrange="-0.8 0.8"/>')  # gravity alone needs 1.4 N m at 1.2 rad
+    limits = limits_for(plant, velocity=20.0, acceleration=100.0, range_margin=0.0)
+    reference = _Swing(1.2)
+    data = _track(plant, reference)
+    motion = simulated_motion(reference, limits, data, torque_driven=False)  # type: ignore[arg-type]
+    assert not motion["holds"] and re.match(r"(q|dq|ddq|tau)\[j0\] at [\d.]+ x its bound", motion["worst"])
+    assert motion["tracking_error_max"]["j0"] > 0.1
+    held = simulated_motion(_Swing(0.2), limits, _track(plant, _Swing(0.2)), torque_driven=False)  # type: ignore[arg-type]
+    assert held["holds"] and held["tracking_error_max"]["j0"] < 0.01
+    results = _results(motion)
+    assert f"WARNING: the simulated motion breaks the limits the design keeps: {motion['worst']}" in summary_table(
+        results
+    )
+    assert "limits hold on the design, not in the motion that ran" in summary_table(results)
+    assert "WARNING: the simulated motion" not in summary_table(_results(held))
+    assert "limits hold\n" in summary_table(_results(held))
+
+
+def test_a_motion_that_presses_geoms_together_is_refused_by_name(tmp_path: Path) -> None:
+    """A link swinging into a world-fixed block: the contact force would be fitted as inertia and friction."""
+    plant = _plant(
+        tmp_path,
+        '<motor joint="j0" ctrlrange="-20 20"/>',
+        world='<geom name="block" type="box" pos="-0.25 0 -0.25" size="0.05 0.05 0.05"/>',
+    )
+    limits = limits_for(plant, velocity=20.0, acceleration=100.0, range_margin=0.0)
+    reference = _Swing(1.0)
+    with pytest.raises(ModelError, match=r"presses geom block \(world\) against rod \(arm\) in \d+ of 1000 samples"):
+        simulated_motion(reference, limits, _track(plant, reference), torque_driven=False)  # type: ignore[arg-type]
+
+
+def _results(motion: dict) -> dict:
+    """The parts of a run's results the summary table reads."""
+    return {
+        "system": "one",
+        "seed": 0,
+        "estimator": "ols",
+        "base_parameters": [{"name": "m", "true": 1.0, "estimate": 1.0, "std": 0.1, "rel_error": 0.0, "z": 0.0}],
+        "excitation": {
+            "name": "default",
+            "cond_XtX": 1.0,
+            "cond_W_colnorm": 1.0,
+            "harmonics": 5,
+            "period_s": 10.0,
+            "limits_ok": True,
+            "simulated": motion,
+        },
+        "validation": {"torque_rms": {"j0": 0.1}, "noise_std": {"j0": 0.01}},
+        "timing_s": {"setup": 0.1},
+    }
