@@ -215,7 +215,9 @@ def test_a_torque_zero_that_changes_between_records_is_structure_that_is_named()
     assert drift["joint"] == "shoulder"
     np.testing.assert_allclose(drift["means"], offsets, atol=0.01)
     assert any("record_offsets=true" in n and n.startswith("shoulder") for n in dg.notes), dg.notes
-    same = _several_records("two_link", [[Injected("torque_offset", "shoulder", 0.06)]] * 3, [])
+    same = _several_records(
+        "two_link", [[Injected("torque_offset", "shoulder", 0.06)]] * 3, [Injected("torque_offset", "shoulder", 0.06)]
+    )
     assert not same.info["changing_offsets"]
     assert same.findings and ("torque_offset", "shoulder") in _names(same)
 

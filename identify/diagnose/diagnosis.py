@@ -509,13 +509,22 @@ def diagnose(
     refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx)
 
     with scratch_folder("sysid_diagnose_") as tmp:
-        xml = calibrated_xml(
-            plant,
-            ext,
-            metric=metric,
-            comment=", ".join(f"{f.effect} {f.target}".strip() for f in findings) or "no effect found",
-        )
-        calibrated = plant_from_xml(xml, f"{plant.name}_calibrated", tmp)
+
+        def calibrate(ext: Extension, named: list[Finding]) -> tuple[str, Plant, np.ndarray]:
+            comment = ", ".join(f"{f.effect} {f.target}".strip() for f in named) or "no effect found"
+            text = calibrated_xml(plant, ext, metric=metric, comment=comment)
+            model = plant_from_xml(text, f"{plant.name}_calibrated", tmp)
+            return text, model, _predict_records(model, ext, va)
+
+        xml, calibrated, preds_cal = calibrate(ext, findings)
+        rejected = _held_out_mse(s_va, s_va.tau_nominal, weights), _held_out_mse(s_va, preds_cal, weights)
+        demoted: list[Finding] = []
+        if findings and not rejected[1] < rejected[0]:
+            # chosen on the training records' folds, but the records held out of the whole fit say otherwise: a
+            # finding must generalise, and the calibrated MJCF must not carry what makes it worse there
+            demoted, findings = findings, []
+            ext = extension_from_fit(plant, [], fit, base_idx, record_offsets=offsets_by_record if m else None)
+            xml, calibrated, preds_cal = calibrate(ext, findings)
         refit = plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", tmp)
         models: dict[str, dict[str, dict[str, float]]] = {}
         preds: dict[str, np.ndarray] = {}
@@ -530,7 +539,7 @@ def diagnose(
         sim_nom = _sim_error_mjcf(plant, va, measured, window_s)
         preds["rigid_body_refit"] = predict_measured_torque(refit, refit_ext, s_va.time, s_va.q, s_va.dq, s_va.ddq)
         sim_refit = _sim_error_mjcf(refit, va, measured, window_s)
-        preds["calibrated"] = _predict_records(calibrated, ext, va)
+        preds["calibrated"] = preds_cal
         sim_cal = _sim_error_mjcf(calibrated, va, advanced, window_s)
         sims = {"nominal": sim_nom, "rigid_body_refit": sim_refit, "calibrated": sim_cal}
         for name, ref in (references or {}).items():
@@ -553,6 +562,12 @@ def diagnose(
     left = s_va.smooth(s_va.tau - preds["calibrated"])
     white_cal = whiteness(left, sigma, fs, band_hz=band)
     verdict, reason = _with_drift(*_verdict(findings, s_va, preds, weights, white_nom, white_cal), drift)
+    if demoted:
+        reason = (
+            f"the effects the selection chose ({', '.join(f.name for f in demoted)}) raise the error on the records "
+            f"held out of the fit ({rejected[0]:.4g} -> {rejected[1]:.4g}, weighted MSE): not named, and not in the "
+            f"calibrated MJCF; {reason}"
+        )
     remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
     return Diagnosis(
         system=plant.name,
@@ -588,6 +603,11 @@ def diagnose(
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
+        + [
+            f"{f.name}: chosen by the selection on the training records ({f.value:.4g} {f.unit}), but with the "
+            "effects chosen beside it the held-out error rises: not named"
+            for f in demoted
+        ]
         + [
             f"{f.name}: chosen by the selection, but fitted with the effects chosen after it, it ends at its "
             f"{f.at_bound} bound, its value of no effect ({f.value:g} {f.unit}): not named"
@@ -667,6 +687,11 @@ def _with_drift(verdict: str, reason: str, drift: Sequence[dict[str, Any]]) -> t
     )
 
 
+def _held_out_mse(s_va: Signals, pred: np.ndarray, weights: np.ndarray) -> float:
+    """The weighted torque MSE of a prediction (N, nv) on the validation records, in the analysis band."""
+    return float(np.mean((s_va.smooth(s_va.tau) - s_va.smooth(pred)) ** 2 @ weights))
+
+
 def _verdict(
     findings: list[Finding],
     s_va: Signals,
@@ -679,16 +704,15 @@ def _verdict(
 
     - `explained`: effects were found, the held-out (validation) weighted torque MSE drops with them, and what
       the calibrated model leaves is white within the noise on every joint;
-    - `unexplained_structure`: structure remains, in the nominal residual when nothing was found (or what was
-      found does not lower the held-out error), or in the calibrated one;
+    - `unexplained_structure`: structure remains, in the nominal residual when nothing was found (effects that
+      do not lower the held-out error are not findings: `diagnose` demotes them), or in the calibrated one;
     - `no_discrepancy`: nothing found and the nominal residual is white within the noise.
     Unactuated joints count where their residual is structured: a passive joint's torque must be zero.
     Training records whose mean residual differs beyond their noise are structure too (`_with_drift`).
     """
-    meas = s_va.smooth(s_va.tau)
 
     def mse(pred: np.ndarray) -> float:
-        return float(np.mean((meas - s_va.smooth(pred)) ** 2 @ weights))
+        return _held_out_mse(s_va, pred, weights)
 
     structured_nom = [bool(w["structured"]) for w in white_nom]
     structured_cal = [bool(w["structured"]) for w in white_cal]
@@ -696,14 +720,7 @@ def _verdict(
         if any(structured_nom):
             return "unexplained_structure", "no candidate effect explains the structure of the nominal residual"
         return "no_discrepancy", "the nominal residual is white within the noise"
-    before, after = mse(preds["nominal"]), mse(preds["calibrated"])
-    if not after < before:
-        if any(structured_nom):
-            return "unexplained_structure", (
-                f"the effects found do not lower the held-out error ({after:.4g} >= {before:.4g}, weighted MSE) "
-                "and the nominal residual is structured"
-            )
-        return "no_discrepancy", "the effects found do not lower the held-out error; the nominal residual is white"
+    before, after = mse(preds["nominal"]), mse(preds["calibrated"])  # after < before: `diagnose` demotes the rest
     if any(structured_cal):
         return "unexplained_structure", (
             f"the effects found lower the held-out error ({before:.4g} -> {after:.4g}, weighted MSE) but the "
