@@ -68,6 +68,13 @@ def mjcf_path(system: str) -> Path:
         if not candidate.is_file():
             raise ValueError(f"model file not found: {candidate}")
         return candidate
+    if system not in SYSTEMS and candidate.is_dir():
+        raise ValueError(f"model path is a directory, not a file: {candidate} (give the .xml MJCF or .urdf in it)")
+    if system not in SYSTEMS and candidate.is_file():
+        raise ValueError(
+            f"model file {candidate} is neither an MJCF (.xml) nor a URDF (.urdf): its suffix "
+            f"{candidate.suffix or '(none)'!r} names no model format (a log goes to sysid-diagnose data.path=...)"
+        )
     if system not in SYSTEMS:
         raise ValueError(
             f"unknown system {system!r}; valid choices: {', '.join(SYSTEMS)} (or a path to an .xml MJCF or a .urdf)"
@@ -197,6 +204,13 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         raise ModelError(f"{path}: gravity compensation (gravcomp) on bodies {bodies} is not supported")
     if m.opt.density != 0 or m.opt.viscosity != 0:
         raise ModelError(f"{path}: fluid forces (option density/viscosity) are not supported")
+    names = {_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)}
+    clash = sorted(n for n in names if n.startswith("cmd_") and n.removeprefix("cmd_") in names)
+    if clash:  # the data format's columns tau_<joint> and tau_cmd_<joint> would be one
+        raise ModelError(
+            f"{path}: joints {clash[0].removeprefix('cmd_')!r} and {clash[0]!r} would share the data column "
+            f"'tau_{clash[0]}' (the torque of one, the command of the other): rename one of them"
+        )
 
 
 def _se3(quat: np.ndarray, pos: np.ndarray) -> pin.SE3:

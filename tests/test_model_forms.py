@@ -222,3 +222,30 @@ def test_a_model_without_joints_is_refused_and_one_without_actuators_cannot_be_r
     plant = load_plant(loose)  # a passive model is fine for measured data ...
     with pytest.raises(ConfigError, match=r"loose.xml: no joint of loose is driven .* add a motor per joint"):
         check_driven(plant)  # ... but a simulated run has nothing to excite it with
+
+
+def test_joints_whose_data_columns_would_clash_are_refused(tmp_path: Path) -> None:
+    """Joints `x` and `cmd_x`: tau_cmd_x is the torque of one and the command of the other; a run wrote the
+    header twice and the reader then blamed the file."""
+    path = tmp_path / "clash.xml"
+    link = '<geom type="capsule" size=".05" fromto="0 0 0 0 0 -.2"/>'
+    path.write_text(
+        f'<mujoco><worldbody><body><joint name="x" axis="0 1 0"/>{link}<body pos="0 0 -.2">'
+        f'<joint name="cmd_x" axis="0 1 0"/>{link}</body></body></worldbody></mujoco>'
+    )
+    with pytest.raises(ModelError, match=r"clash\.xml: joints 'x' and 'cmd_x' would share the data column 'tau_cmd_x'"):
+        load_plant(path)
+
+
+def test_a_model_path_that_is_no_model_file_says_what_it_is(tmp_path: Path) -> None:
+    """A folder or a log given as the model read "unknown system '...'; valid choices: ...": true of the name,
+    but the user gave a path."""
+    (tmp_path / "robot").mkdir()
+    with pytest.raises(ValueError, match=r"model path is a directory, not a file: .*robot \(give the \.xml MJCF"):
+        load_plant(tmp_path / "robot")
+    log = tmp_path / "run.csv"
+    log.write_text("time,q_j\n0,0\n")
+    with pytest.raises(ValueError, match=r"run\.csv is neither an MJCF \(\.xml\) nor a URDF .*suffix '\.csv'"):
+        load_plant(log)
+    with pytest.raises(ValueError, match=r"unknown system 'tow_link'; valid choices"):
+        load_plant("tow_link")
