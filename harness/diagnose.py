@@ -30,7 +30,7 @@ from envs.dataset import Dataset, atomic_write
 from envs.measured import read_many
 from envs.split import split_train_validation
 from harness.results import run_job, to_jsonable, write_json
-from harness.rundir import RunFolder, RunFolderError, check_output_override, claim
+from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
 from harness.setup import CONF_DIR, with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
@@ -459,7 +459,8 @@ def main() -> None:
     except (ConfigError, RunFolderError) as err:
         print(f"sysid-diagnose: error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
-    _hydra_main()
+    with kept_on_failure(sys.argv[1:], ("diagnosis.json",)):  # written last: a finished diagnosis
+        _hydra_main()
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 from harness.progress import printer
 from harness.results import run_job, summary_table, write_json
-from harness.rundir import RunFolder, RunFolderError, check_output_override, claim
+from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
 from harness.setup import (
     CONF_DIR,
     design_from_config,
@@ -96,6 +96,7 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
             "system.limits.clearance_m, which also covers world geoms only where they are the floor plane) or take "
             'them out of collision (contype="0" conaffinity="0")'
         )
+    assert data.ddq is not None  # a simulated dataset has the simulator's accelerations
     rows = data.time >= data.time[0] + min(SETTLE_S, 0.5 * float(data.time[-1] - data.time[0]))
     q, dq, ddq, tau = (x[rows] for x in (data.meta["q_true"], data.meta["dq_true"], data.ddq, data.meta["tau_applied"]))
     ratios = limits.ratios(q, dq, ddq, tau)
@@ -343,7 +344,8 @@ def main() -> None:
     except (ConfigError, RunFolderError) as err:
         print(f"sysid-run: error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
-    _hydra_main()
+    with kept_on_failure(sys.argv[1:], OUTPUTS):
+        _hydra_main()
 
 
 if __name__ == "__main__":

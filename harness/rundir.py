@@ -39,6 +39,7 @@ __all__ = [
     "RunFolderError",
     "check_output_override",
     "claim",
+    "kept_on_failure",
     "terminate_as_exit",
 ]
 
@@ -107,6 +108,15 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
         if (target / LOCK_NAME).exists():
             os.close(_lock(target / LOCK_NAME, target))  # raises while another run holds it
         _refuse_held(target, outputs, "overwrite=true" in argv)
+    if values and target.is_dir() and key == "hydra.sweep.dir=" and "overwrite=true" not in argv:
+        # Hydra rewrites multirun.yaml and each job folder's .hydra/ before any job could refuse its folder
+        done = sorted(str(p.relative_to(target)) for name in RESULTS_FILES for p in target.glob(f"*/{name}"))
+        if done:
+            raise RunFolderError(
+                f"sweep folder {target} already holds finished jobs ({', '.join(done[:3])}"
+                f"{', ...' if len(done) > 3 else ''}); pass overwrite=true to replace them, or choose another "
+                "hydra.sweep.dir"
+            )
 
 
 def _refuse_held(folder: Path, outputs: Sequence[str], overwrite: bool) -> None:
@@ -200,3 +210,31 @@ def terminate_as_exit() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def kept_on_failure(argv: Sequence[str], outputs: Sequence[str]) -> Iterator[None]:
+    """Around Hydra's run of a command line with `overwrite=true` into a folder that holds a finished run (its
+    last output): Hydra replaces the folder's `.hydra/` files and log before the run starts, so a run that then
+    fails would leave the old outputs beside the new, failed run's config. Where the old last output is still
+    there after a failure, the `.hydra/` files and logs are put back as they were (new ones removed)."""
+    values = [a.split("=", 1)[1] for a in argv if a.startswith("hydra.run.dir=")]
+    multirun = "-m" in argv or "--multirun" in argv
+    target = Path(values[-1]) if values and not multirun else None
+    if target is None or "overwrite=true" not in argv or not outputs or not (target / outputs[-1]).is_file():
+        yield
+        return
+    last = (target / outputs[-1]).read_bytes()
+    kept = {p: p.read_bytes() for p in [*target.glob(".hydra/*"), *target.glob("*.log")] if p.is_file()}
+    try:
+        yield
+    except BaseException as err:
+        failed = not isinstance(err, SystemExit) or err.code not in (0, None)
+        last_path = target / outputs[-1]
+        if failed and last_path.is_file() and last_path.read_bytes() == last:
+            for p in [*target.glob(".hydra/*"), *target.glob("*.log")]:
+                if p.is_file() and p not in kept:
+                    p.unlink()
+            for p, data in kept.items():
+                p.write_bytes(data)
+        raise

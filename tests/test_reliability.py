@@ -174,6 +174,32 @@ def test_a_folder_holding_a_users_results_is_refused_without_overwrite(tmp_path:
     assert not (tmp_path / "failure.json").exists()  # the folder is not this run's: nothing added to it
 
 
+def test_an_overwrite_that_fails_before_it_starts_leaves_the_finished_runs_record(tmp_path: Path) -> None:
+    """overwrite=true with a value refused inside the run (after Hydra wrote its files): the finished run's
+    results stayed, but its `.hydra/` config and log were the failed run's, which described other outputs."""
+    out = tmp_path / "run"
+    assert _cli("system=pendulum", "record=none", "system.periods=1", f"hydra.run.dir={out}").returncode == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    proc = _cli("system=pendulum", "record=none", "system.periods=-1", "overwrite=true", f"hydra.run.dir={out}")
+    _one_line_error(proc, "system.periods must be > 0")
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+
+
+def test_a_sweep_into_a_folder_of_finished_jobs_is_refused_before_hydra_writes(tmp_path: Path) -> None:
+    """Hydra rewrote multirun.yaml and the old jobs' .hydra/ before each job refused its folder, and the sweep's
+    summary then named the old jobs as this sweep's."""
+    sweep = tmp_path / "sweep"
+    (sweep / "0" / ".hydra").mkdir(parents=True)
+    (sweep / "0" / "results.json").write_text('{"old": true}')
+    (sweep / "0" / ".hydra" / "overrides.yaml").write_text("- seed=0\n")
+    (sweep / "multirun.yaml").write_text("old: true\n")
+    before = {p.relative_to(sweep): p.read_bytes() for p in sweep.rglob("*") if p.is_file()}
+    proc = _cli("-m", "system=pendulum", "record=none", "seed=1,2", f"hydra.sweep.dir={sweep}")
+    _one_line_error(proc, f"sweep folder {sweep} already holds finished jobs (0/results.json)", "overwrite=true")
+    assert {p.relative_to(sweep): p.read_bytes() for p in sweep.rglob("*") if p.is_file()} == before
+
+
 @pytest.mark.parametrize(("tool", "foreign"), [("harness.run", "diagnosis.json"), ("harness.diagnose", "results.json")])
 def test_a_folder_holding_the_other_tools_results_is_refused_even_with_overwrite(
     tmp_path: Path, tool: str, foreign: str
