@@ -560,6 +560,8 @@ def _locate_bad_cell(
         for row, cells in enumerate(rows):
             for index, name in used:
                 try:
+                    if "_" in cells[index]:  # Python reads 1_0 as 10; numpy's reader (and a CSV) does not
+                        raise ValueError(cells[index])
                     float(cells[index])
                 except ValueError:
                     raise DataError(

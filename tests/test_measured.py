@@ -152,9 +152,10 @@ def test_unknown_column_is_named(
         read_measured(write(tmp_path / "unknown.csv", cols), plant, columns=columns)
 
 
-def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant) -> None:
-    path = write(tmp_path / "text.csv", table(), cell=("tau_elbow", 7, "n/a"))
-    with pytest.raises(DataError, match=r"text\.csv: column 'tau_elbow', row 7 \(line 9\): 'n/a' is not a number"):
+@pytest.mark.parametrize("cell", ["n/a", "1_0"])  # Python's float() reads 1_0 as 10: the cell was not located
+def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant, cell: str) -> None:
+    path = write(tmp_path / "text.csv", table(), cell=("tau_elbow", 7, cell))
+    with pytest.raises(DataError, match=rf"text\.csv: column 'tau_elbow', row 7 \(line 9\): '{cell}' is not a number"):
         read_measured(path, plant)
 
 
