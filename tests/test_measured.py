@@ -480,8 +480,17 @@ def test_read_many_reports_every_bad_file(tmp_path: Path, plant: Plant) -> None:
         read_many([good, good], plant)
     copy = tmp_path / "copy.csv"
     copy.write_bytes(good.read_bytes())  # fitted on one and validated on the other, it validated on the fit's data
-    with pytest.raises(DataError, match=r"copy\.csv has the same content as .*good\.csv \(a copy\?\)"):
+    with pytest.raises(DataError, match=r"copy\.csv holds the same samples as .*good\.csv \(a copy\?\)"):
         read_many([good, copy], plant)
+    # the same samples compressed, or saved with other line endings: other bytes, the same data (it was accepted)
+    packed = tmp_path / "good.csv.gz"
+    packed.write_bytes(gzip.compress(good.read_bytes()))
+    crlf = tmp_path / "crlf.csv"
+    crlf.write_bytes(good.read_bytes().replace(b"\n", b"\r\n"))
+    for other in (packed, crlf):
+        with pytest.raises(DataError, match=rf"{other.name} holds the same samples as .*good\.csv"):
+            read_many([good, other], plant)
+    read_many([good, write(tmp_path / "other.csv", table(amplitude=(0.4, 0.7)))], plant)  # other data: accepted
 
 
 def test_dfki_logs_read_through_the_data_config(shared_data: Path, plant: Plant, monkeypatch) -> None:
