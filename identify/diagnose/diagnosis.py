@@ -331,6 +331,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                     f"joints' ({r[i, i]:.2f}, {r[j, j]:.2f}): the two columns look swapped; map them the other way "
                     "round in data.columns (or set diagnose.check_torque_signs=false)"
                 )
+    _check_angle_columns(plant, data, signal, [int(j) for j in np.flatnonzero(moving)], src)
     for j in joints:
         size = float(b[:, j] @ a[:, j]) / max(float(na[j]) ** 2, 1e-300)
         if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE:
@@ -340,6 +341,51 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                 f"scale in the column mapping (data.columns.tau_{names[j]}), or set diagnose.check_torque_signs=false "
                 "if the motion really needs the opposite torque"
             )
+
+
+# two angle columns look swapped where the nominal model, given them the other way round, leaves at most this
+# share of its torque misfit (RMS over the actuated joints, in the analysis band)
+ANGLE_SWAP_RATIO = 0.5
+_ANGLE_SWAP_ROWS = 2000  # rows (evenly spaced) the swapped models are evaluated on
+
+
+def _check_angle_columns(plant: Plant, data: Dataset, signal: Signals, moving: list[int], src: str) -> None:
+    """Refuse a record whose two angle columns (of joints that move) are swapped: the nominal model fed them the
+    other way round fits the measured torque far better (`ANGLE_SWAP_RATIO`) than fed them as given. Joints of
+    other kinds (a hinge and a slide) are not paired.
+
+    Raises:
+        DataError: the two columns (as the file names them) and both misfits.
+    """
+    rows = np.unique(np.linspace(0, signal.n_samples - 1, min(_ANGLE_SWAP_ROWS, signal.n_samples)).astype(int))
+    act = np.asarray(plant.actuated, bool)
+    measured = signal.smooth(signal.tau)[rows][:, act]
+
+    def misfit(tau_nominal: np.ndarray) -> float:  # tau_nominal (rows, nv): of the filtered states, smooth
+        return float(np.sqrt(np.mean((measured - tau_nominal[:, act]) ** 2)))
+
+    own = misfit(signal.tau_nominal[rows])
+    q, dq, ddq = signal.q[rows], signal.dq[rows], signal.ddq[rows]
+    cols = data.meta.get("columns", {})
+
+    def column(j: int) -> str:
+        ours = f"q_{plant.joint_names[j]}"
+        return f"{ours} (the file's {cols[ours]})" if ours in cols and cols[ours] != ours else ours
+
+    for x, i in enumerate(moving):
+        for j in moving[x + 1 :]:
+            if plant.hinge[i] != plant.hinge[j]:
+                continue
+            order = np.arange(plant.nv)
+            order[[i, j]] = j, i
+            other = misfit(joint_torque(plant, q[:, order], dq[:, order], ddq[:, order])[0])
+            if other < ANGLE_SWAP_RATIO * own:
+                raise DataError(
+                    f"{src}: {column(i)} and {column(j)} look swapped: the nominal model misses the measured torque "
+                    f"by {own:.3g} (RMS over the actuated joints) with the angles as given and by {other:.3g} with "
+                    "them exchanged; map them the other way round in data.columns (or set "
+                    "diagnose.check_torque_signs=false)"
+                )
 
 
 def _rows(rec: _Record) -> np.ndarray:
