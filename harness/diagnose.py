@@ -45,6 +45,7 @@ from identify.diagnose import (
     find_anomalies,
     load_author_model,
 )
+from identify.diagnose.anomalies import still_joints
 from identify.diagnose.state_noise import check_full_rate_state_noise
 from identify.excitation_check import check_excitation
 
@@ -346,7 +347,20 @@ def _check_training_excitation(
         states = derive_states(data, method, **options)
         rows = states.valid
         blocks.append(base.columns(model.regressor(states.q[rows], states.dq[rows], states.ddq[rows])))
-    check_excitation(np.concatenate(blocks), names=base.names, source=", ".join(Path(d.source).name for d in train))
+    files = ", ".join(Path(d.source).name for d in train)
+    try:
+        check_excitation(np.concatenate(blocks), names=base.names, source=files)
+    except DataError as err:
+        still = set.intersection(*(set(still_joints(d, plant.hinge)) for d in train))
+        if not still:
+            raise
+        j = min(still)
+        span = max(float(np.ptp(d.q[:, j])) for d in train)
+        raise DataError(
+            f"{files}: joint {plant.joint_names[j]!r} never moves in any training file (q_{plant.joint_names[j]} "
+            f"spans at most {span:.3g} {'rad' if plant.hinge[j] else 'm'}; a frozen or unplugged encoder, or a joint "
+            f"held still), so {str(err).removeprefix(files + ': ')}: give a file in which it moves"
+        ) from None
 
 
 def _write_outputs(

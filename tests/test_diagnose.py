@@ -308,3 +308,14 @@ def test_swapped_angle_columns_are_refused_by_name(tmp_path: Path) -> None:
     swapped = dataclasses.replace(train, q=train.q[:, ::-1].copy())
     with pytest.raises(DataError, match=r"q_shoulder and q_elbow look swapped: the nominal model misses .* by [\d.]+"):
         run_diagnosis(plant, swapped, validation)
+
+
+def test_a_joint_frozen_in_every_training_file_is_named_in_the_refusal(tmp_path: Path) -> None:
+    """An elbow encoder that reads a constant: the refusal said only that Ia2 is not excited."""
+    from harness.diagnose import _check_training_excitation
+
+    plant, train, _ = simulate("two_link", [], 4, tmp_path)
+    frozen = dataclasses.replace(train, q=np.column_stack([train.q[:, 0], np.full(len(train.q), 0.1)]))
+    with pytest.raises(DataError, match=r"joint 'elbow' never moves in any training file .* so the data do not excite"):
+        _check_training_excitation(plant, (frozen,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
+    _check_training_excitation(plant, (train,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
