@@ -26,7 +26,7 @@ import numpy as np
 
 from dynamics.errors import ModelError
 
-__all__ = ["ACTUATOR_KINDS", "Actuation", "Actuator", "actuation_of", "as_motors"]
+__all__ = ["ACTUATOR_KINDS", "Actuation", "Actuator", "actuation_of", "as_motors", "two_sided"]
 
 ACTUATOR_KINDS = ("general", "motor", "position", "velocity")
 
@@ -97,16 +97,16 @@ def _actuator(m: mujoco.MjModel, a: int, where: str) -> Actuator:
     kind = _kind(gain, int(m.actuator_biastype[a]), bias)
     limit = np.inf
     if m.actuator_forcelimited[a]:
-        limit = _two_sided(m.actuator_forcerange[a]) * abs(gear)
+        limit = two_sided(m.actuator_forcerange[a]) * abs(gear)
     ctrl_range = np.asarray(m.actuator_ctrlrange[a], dtype=float).copy() if m.actuator_ctrllimited[a] else None
     if kind == "motor" and ctrl_range is not None:
-        limit = min(limit, _two_sided(ctrl_range) * abs(gain * gear))
+        limit = min(limit, two_sided(ctrl_range) * abs(gain * gear))
     if m.jnt_actfrclimited[jid]:
-        limit = min(limit, _two_sided(m.jnt_actfrcrange[jid]))
+        limit = min(limit, two_sided(m.jnt_actfrcrange[jid]))
     return Actuator(name, int(m.jnt_dofadr[jid]), kind, gear, gain, bias, ctrl_range, limit)
 
 
-def _two_sided(bounds: np.ndarray) -> float:
+def two_sided(bounds: np.ndarray) -> float:
     """The largest magnitude a range [lo, hi] allows in both directions: min(-lo, hi), 0 where it is one-sided
     (a range "0 20" pushes one way only; a symmetric bound must not take 20 from it)."""
     lo, hi = float(bounds[0]), float(bounds[1])

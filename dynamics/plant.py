@@ -68,14 +68,14 @@ def mjcf_path(system: str) -> Path:
         if not candidate.is_file():
             raise ValueError(f"model file not found: {candidate}")
         return candidate
-    if system not in SYSTEMS and candidate.is_dir():
-        raise ValueError(f"model path is a directory, not a file: {candidate} (give the .xml MJCF or .urdf in it)")
-    if system not in SYSTEMS and candidate.is_file():
-        raise ValueError(
-            f"model file {candidate} is neither an MJCF (.xml) nor a URDF (.urdf): its suffix "
-            f"{candidate.suffix or '(none)'!r} names no model format (a log goes to sysid-diagnose data.path=...)"
-        )
     if system not in SYSTEMS:
+        if candidate.is_dir():
+            raise ValueError(f"model path is a directory, not a file: {candidate} (give the .xml MJCF or .urdf in it)")
+        if candidate.is_file():
+            raise ValueError(
+                f"model file {candidate} is neither an MJCF (.xml) nor a URDF (.urdf): its suffix "
+                f"{candidate.suffix or '(none)'!r} names no model format (a log goes to sysid-diagnose data.path=...)"
+            )
         raise ValueError(
             f"unknown system {system!r}; valid choices: {', '.join(SYSTEMS)} (or a path to an .xml MJCF or a .urdf)"
         )

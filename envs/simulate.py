@@ -156,12 +156,8 @@ def _mass_matrices(plant: Plant, q: np.ndarray) -> np.ndarray:
 
 
 def _mass_diagonal(plant: Plant, q: np.ndarray) -> np.ndarray:
-    m, d = plant.mj_model, mujoco.MjData(plant.mj_model)
-    d.qpos[:] = q
-    mujoco.mj_forward(m, d)
-    full = np.zeros((m.nv, m.nv))
-    mujoco.mj_fullM(m, d, full)
-    return np.diag(full).copy()
+    """(nv,) the mass matrix's diagonal at the pose q (nv,)."""
+    return np.diag(_mass_matrices(plant, q[None])[0]).copy()
 
 
 # largest (rate x physics step) of a servo's spring sqrt(kp / M) or damper (kv + d) / M that the simulation

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from dynamics.actuators import two_sided
 from dynamics.clearance import Clearance, clearance_for
 from dynamics.plant import Plant
 
@@ -124,7 +125,7 @@ def limits_for(
         if a.kind == "position":
             lo[a.joint], hi[a.joint] = max(lo[a.joint], reach[0]), min(hi[a.joint], reach[1])
         else:
-            dq_max[a.joint] = min(dq_max[a.joint], max(min(-reach[0], reach[1]), 0.0))
+            dq_max[a.joint] = min(dq_max[a.joint], two_sided(reach))
     finite = np.isfinite(lo) & np.isfinite(hi)
     shrink = range_margin * (hi - lo)
     lo[finite] += shrink[finite]

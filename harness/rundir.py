@@ -87,9 +87,8 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
     Raises:
         RunFolderError: the folder (or its nearest existing parent) is not writable, is locked, or holds a run.
     """
-    key = "hydra.sweep.dir=" if ("-m" in argv or "--multirun" in argv) else "hydra.run.dir="
-    values = [a.split("=", 1)[1] for a in argv if a.startswith(key)]
-    target = Path(values[-1].split("${", 1)[0] or ".") if values else Path.cwd()
+    key, value = _folder_override(argv)
+    target = Path(value.split("${", 1)[0] or ".") if value is not None else Path.cwd()
     folder = target.absolute()
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
@@ -104,11 +103,11 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
         reason = "no space left on the device" if err.errno == errno.ENOSPC else (err.strerror or str(err))
         where = "" if folder == target.absolute() else f" (it would be made in {folder})"
         raise RunFolderError(f"run folder {target} is not writable{where}: {reason}") from None
-    if values and target.is_dir() and key == "hydra.run.dir=":
+    if value is not None and target.is_dir() and key == "hydra.run.dir=":
         if (target / LOCK_NAME).exists():
             os.close(_lock(target / LOCK_NAME, target))  # raises while another run holds it
         _refuse_held(target, outputs, "overwrite=true" in argv)
-    if values and target.is_dir() and key == "hydra.sweep.dir=" and "overwrite=true" not in argv:
+    if value is not None and target.is_dir() and key == "hydra.sweep.dir=" and "overwrite=true" not in argv:
         # Hydra rewrites multirun.yaml and each job folder's .hydra/ before any job could refuse its folder
         done = sorted(str(p.relative_to(target)) for name in RESULTS_FILES for p in target.glob(f"*/{name}"))
         if done:
@@ -117,6 +116,14 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
                 f"{', ...' if len(done) > 3 else ''}); pass overwrite=true to replace them, or choose another "
                 "hydra.sweep.dir"
             )
+
+
+def _folder_override(argv: Sequence[str]) -> tuple[str, str | None]:
+    """The folder key of a command line (`hydra.sweep.dir=` with -m, else `hydra.run.dir=`) and its last value
+    there (None where the command line does not set it)."""
+    key = "hydra.sweep.dir=" if ("-m" in argv or "--multirun" in argv) else "hydra.run.dir="
+    values = [a.split("=", 1)[1] for a in argv if a.startswith(key)]
+    return key, values[-1] if values else None
 
 
 def _refuse_held(folder: Path, outputs: Sequence[str], overwrite: bool) -> None:
@@ -218,22 +225,25 @@ def kept_on_failure(argv: Sequence[str], outputs: Sequence[str]) -> Iterator[Non
     last output): Hydra replaces the folder's `.hydra/` files and log before the run starts, so a run that then
     fails would leave the old outputs beside the new, failed run's config. Where the old last output is still
     there after a failure, the `.hydra/` files and logs are put back as they were (new ones removed)."""
-    values = [a.split("=", 1)[1] for a in argv if a.startswith("hydra.run.dir=")]
-    multirun = "-m" in argv or "--multirun" in argv
-    target = Path(values[-1]) if values and not multirun else None
+    key, value = _folder_override(argv)
+    target = Path(value) if value is not None and key == "hydra.run.dir=" else None
     if target is None or "overwrite=true" not in argv or not outputs or not (target / outputs[-1]).is_file():
         yield
         return
-    last = (target / outputs[-1]).read_bytes()
-    kept = {p: p.read_bytes() for p in [*target.glob(".hydra/*"), *target.glob("*.log")] if p.is_file()}
+    last_path = target / outputs[-1]
+    last = last_path.read_bytes()
+
+    def record() -> list[Path]:  # what Hydra writes into the folder before the run
+        return [p for p in [*target.glob(".hydra/*"), *target.glob("*.log")] if p.is_file()]
+
+    kept = {p: p.read_bytes() for p in record()}
     try:
         yield
     except BaseException as err:
         failed = not isinstance(err, SystemExit) or err.code not in (0, None)
-        last_path = target / outputs[-1]
         if failed and last_path.is_file() and last_path.read_bytes() == last:
-            for p in [*target.glob(".hydra/*"), *target.glob("*.log")]:
-                if p.is_file() and p not in kept:
+            for p in record():
+                if p not in kept:
                     p.unlink()
             for p, data in kept.items():
                 p.write_bytes(data)

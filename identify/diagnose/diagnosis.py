@@ -304,7 +304,8 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
         DataError: the file, the column (as the file names it) and the two correlations.
     """
     a = signal.smooth(signal.tau_nominal)
-    b = signal.smooth(signal.tau)
+    tau_band = signal.smooth(signal.tau)
+    b = tau_band
     if moving is None:
         moving = moving_joints(data, plant.hinge)
     joints = [int(j) for j in np.flatnonzero(np.asarray(plant.actuated, bool) & moving)]
@@ -313,13 +314,11 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
     na, nb = np.linalg.norm(a, axis=0), np.linalg.norm(b, axis=0)
     ok = (na > 0) & (nb > 0)
     r = np.where(np.outer(ok, ok), (b.T @ a) / np.maximum(np.outer(nb, na), 1e-300), 0.0)  # r[i, j]: tau_i, nominal_j
-    cols = data.meta.get("columns", {})
     names = plant.joint_names
     src = Path(data.source).name if data.source else "the record"
 
     def column(j: int) -> str:
-        ours = f"tau_{names[j]}"
-        return f"{ours} (the file's {cols[ours]})" if ours in cols and cols[ours] != ours else ours
+        return _file_column(data, f"tau_{names[j]}")
 
     band = f" below {signal.band_hz:g} Hz" if signal.band_hz else ""
     for x, i in enumerate(joints):
@@ -331,7 +330,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                     f"joints' ({r[i, i]:.2f}, {r[j, j]:.2f}): the two columns look swapped; map them the other way "
                     "round in data.columns (or set diagnose.check_torque_signs=false)"
                 )
-    _check_angle_columns(plant, data, signal, [int(j) for j in np.flatnonzero(moving)], src)
+    _check_angle_columns(plant, data, signal, tau_band, [int(j) for j in np.flatnonzero(moving)], src)
     for j in joints:
         size = float(b[:, j] @ a[:, j]) / max(float(na[j]) ** 2, 1e-300)
         if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE:
@@ -349,28 +348,34 @@ ANGLE_SWAP_RATIO = 0.5
 _ANGLE_SWAP_ROWS = 2000  # rows (evenly spaced) the swapped models are evaluated on
 
 
-def _check_angle_columns(plant: Plant, data: Dataset, signal: Signals, moving: list[int], src: str) -> None:
+def _file_column(data: Dataset, ours: str) -> str:
+    """A column by our name, with the file's own name where the column mapping gave it another."""
+    cols = data.meta.get("columns", {})
+    return f"{ours} (the file's {cols[ours]})" if ours in cols and cols[ours] != ours else ours
+
+
+def _check_angle_columns(
+    plant: Plant, data: Dataset, signal: Signals, tau_band: np.ndarray, moving: list[int], src: str
+) -> None:
     """Refuse a record whose two angle columns (of joints that move) are swapped: the nominal model fed them the
-    other way round fits the measured torque far better (`ANGLE_SWAP_RATIO`) than fed them as given. Joints of
-    other kinds (a hinge and a slide) are not paired.
+    other way round fits the measured torque (`tau_band`: in the analysis band) far better (`ANGLE_SWAP_RATIO`)
+    than fed them as given. Joints of other kinds (a hinge and a slide) are not paired.
 
     Raises:
         DataError: the two columns (as the file names them) and both misfits.
     """
     rows = np.unique(np.linspace(0, signal.n_samples - 1, min(_ANGLE_SWAP_ROWS, signal.n_samples)).astype(int))
     act = np.asarray(plant.actuated, bool)
-    measured = signal.smooth(signal.tau)[rows][:, act]
+    measured = tau_band[rows][:, act]
 
     def misfit(tau_nominal: np.ndarray) -> float:  # tau_nominal (rows, nv): of the filtered states, smooth
         return float(np.sqrt(np.mean((measured - tau_nominal[:, act]) ** 2)))
 
     own = misfit(signal.tau_nominal[rows])
     q, dq, ddq = signal.q[rows], signal.dq[rows], signal.ddq[rows]
-    cols = data.meta.get("columns", {})
 
     def column(j: int) -> str:
-        ours = f"q_{plant.joint_names[j]}"
-        return f"{ours} (the file's {cols[ours]})" if ours in cols and cols[ours] != ours else ours
+        return _file_column(data, f"q_{plant.joint_names[j]}")
 
     for x, i in enumerate(moving):
         for j in moving[x + 1 :]:
@@ -563,9 +568,9 @@ def diagnose(
             return text, model, _predict_records(model, ext, va)
 
         xml, calibrated, preds_cal = calibrate(ext, findings)
-        rejected = _held_out_mse(s_va, s_va.tau_nominal, weights), _held_out_mse(s_va, preds_cal, weights)
+        held_out = _held_out_mse(s_va, s_va.tau_nominal, weights), _held_out_mse(s_va, preds_cal, weights)
         demoted: list[Finding] = []
-        if findings and not rejected[1] < rejected[0]:
+        if findings and not held_out[1] < held_out[0]:
             # chosen on the training records' folds, but the records held out of the whole fit say otherwise: a
             # finding must generalise, and the calibrated MJCF must not carry what makes it worse there
             demoted, findings = findings, []
@@ -611,7 +616,7 @@ def diagnose(
     if demoted:
         reason = (
             f"the effects the selection chose ({', '.join(f.name for f in demoted)}) raise the error on the records "
-            f"held out of the fit ({rejected[0]:.4g} -> {rejected[1]:.4g}, weighted MSE): not named, and not in the "
+            f"held out of the fit ({held_out[0]:.4g} -> {held_out[1]:.4g}, weighted MSE): not named, and not in the "
             f"calibrated MJCF; {reason}"
         )
     remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
