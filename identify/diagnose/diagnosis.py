@@ -502,6 +502,11 @@ def diagnose(
     s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
     s_va = stack_signals([r.signals for r in va])
+    held_tr, held_va = _held_by_friction(plant, s_tr), _held_by_friction(plant, s_va)
+    at_rest = {  # per joint: the share of the training rows its nominal frictionloss holds (set-valued torque)
+        names[j]: float(np.mean(held_tr[:, j])) for j in range(plant.nv) if held_tr[:, j].any()
+    }
+    s_tr, s_va = _left_out(s_tr, held_tr), _left_out(s_va, held_va)
     floor = _noise_floor(tr, unfitted) * plant.actuated
     weights = _weights(plant, floor)
 
@@ -609,9 +614,11 @@ def diagnose(
     # zero) is judged against the finest actuated joint's noise, as in the fit's weights
     sigma = 1.0 / np.sqrt(weights)
     band = _structure_band(va[0].data, derivatives, options)
-    white_nom = whiteness(s_va.residual, sigma, fs, band_hz=band)
-    left = s_va.smooth(s_va.tau - preds["calibrated"])
-    white_cal = whiteness(left, sigma, fs, band_hz=band)
+    # the torques left out (`Signals.used`) are zeros in the residual: the noise expected is the share kept
+    kept = sigma * np.sqrt(np.mean(s_va.used, axis=0) if s_va.used is not None else 1.0)
+    white_nom = whiteness(s_va.residual, kept, fs, band_hz=band)
+    left = s_va.in_band(s_va.tau - preds["calibrated"])
+    white_cal = whiteness(left, kept, fs, band_hz=band)
     verdict, reason = _with_drift(*_verdict(findings, s_va, preds, weights, white_nom, white_cal), drift)
     if demoted:
         reason = (
@@ -651,6 +658,7 @@ def diagnose(
             "prediction_std": _per_joint(names, spread),
             "left_out_of_fit": left_out,
             "left_out_sticking": sticking,
+            "held_by_nominal_friction": at_rest,
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
@@ -685,6 +693,12 @@ def diagnose(
             for f, z in _weak_findings(findings, z_floor)
         ]
         + [describe_outside(d) for d in outside]
+        + [
+            f"{joint}: at rest or turning round (below {SLIDING_FRACTION:.0%} of its RMS speed) in {share:.1%} of the "
+            f"training rows, where the nominal frictionloss {float(plant.frictionloss[names.index(joint)]):.4g} N m "
+            "holds it with any torque within its breakaway: those torques are left out of the fit and the verdict"
+            for joint, share in at_rest.items()
+        ]
         + [
             f"{Path(d['source']).name}: {d['joint']}'s torque left out of the fit there (the joint never moves; "
             "static friction held it)"
@@ -739,8 +753,9 @@ def _with_drift(verdict: str, reason: str, drift: Sequence[dict[str, Any]]) -> t
 
 
 def _held_out_mse(s_va: Signals, pred: np.ndarray, weights: np.ndarray) -> float:
-    """The weighted torque MSE of a prediction (N, nv) on the validation records, in the analysis band."""
-    return float(np.mean((s_va.smooth(s_va.tau) - s_va.smooth(pred)) ** 2 @ weights))
+    """The weighted torque MSE of a prediction (N, nv) on the validation records, in the analysis band, over the
+    torques the fit uses (`Signals.used`: not where a joint rests in its friction)."""
+    return float(np.mean(s_va.zero_unused(s_va.smooth(s_va.tau) - s_va.smooth(pred)) ** 2 @ weights))
 
 
 def _verdict(
@@ -946,7 +961,14 @@ def _without(s: Signals, unfitted: np.ndarray) -> Signals:
     """The signals with the torques of `unfitted` (records, nv) left out (`Signals.used`)."""
     if not np.any(unfitted):
         return s
-    return dataclasses.replace(s, used=~unfitted[s.record])
+    return _left_out(s, unfitted[s.record])
+
+
+def _left_out(s: Signals, rows: np.ndarray) -> Signals:
+    """The signals with the (row, joint) torques of `rows` (N, nv) left out too (`Signals.used`)."""
+    if not np.any(rows):
+        return s
+    return dataclasses.replace(s, used=~rows if s.used is None else s.used & ~rows)
 
 
 _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle within a few)
@@ -955,6 +977,30 @@ _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle wit
 SLIDING_FRACTION = 0.1  # below this share of a joint's RMS speed in a record, its Coulomb friction is not fitted
 _SIGN_FRICTION = frozenset({"coulomb_friction", "load_friction"})  # friction laws of sign(dq)
 _LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "stribeck_friction", "backlash"})  # told apart below it
+
+
+def _slow_rows(s: Signals, joints: np.ndarray) -> np.ndarray:
+    """(N, nv) True where a joint of `joints` (nv,) bool moves at most `SLIDING_FRACTION` of its RMS speed in
+    that record (a joint at rest or turning round)."""
+    slow = np.zeros(s.dq.shape, bool)
+    for r in np.unique(s.record):
+        rows = s.record == r
+        speed = np.sqrt(np.mean(s.dq[rows] ** 2, axis=0))
+        slow[rows] = np.abs(s.dq[rows]) <= SLIDING_FRACTION * speed
+    return slow & np.asarray(joints, bool)
+
+
+def _held_by_friction(plant: Plant, s: Signals) -> np.ndarray:
+    """(N, nv) True where a joint whose nominal MJCF gives it an ideal frictionloss F (sign(dq) in the torque
+    model, `dynamics.friction`) moves slower than `SLIDING_FRACTION` of its RMS speed in that record.
+
+    There the joint sticks or turns round, and its friction is anywhere within +-F, not F sign(dq) at the
+    filtered velocity: the nominal torque model is set-valued there, and the measured torque says nothing a
+    column can explain (on an SO-100 arm simulated with its own frictionloss 0.1 N m, the jaw rests in 37.5 %
+    of its training rows and the nominal residual there is several times the noise). Those torques are left
+    out of the fit and of the verdict, as a joint that never moves is (`_still_joints`)."""
+    ideal = (np.asarray(plant.frictionloss) > 0) & (np.asarray(plant.friction_speed) == 0)
+    return _slow_rows(s, ideal)
 
 
 def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.ndarray | None:
@@ -966,15 +1012,11 @@ def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.n
     testbed 2 to 5 of its stds: 0.0389 +- 0.0004 for 0.04 N m; on a UR5e from another generator 0.984 +- 0.0035
     for 1 N m). Where the findings give the joint a low-speed shape (a ramp, Stribeck, backlash), those rows are
     what tells it, and they are kept. The selection, which compares the shapes, sees every row."""
-    mask = np.ones(s.dq.shape, bool)
+    joints = np.zeros(len(names), bool)
     for j, name in enumerate(names):
         effects = {st.candidate.effect for st in steps if st.candidate.target == name}
-        if not effects & _SIGN_FRICTION or effects & _LOW_SPEED_SHAPES:
-            continue
-        for r in np.unique(s.record):
-            rows = s.record == r
-            speed = float(np.sqrt(np.mean(s.dq[rows, j] ** 2)))
-            mask[rows, j] = np.abs(s.dq[rows, j]) > SLIDING_FRACTION * speed
+        joints[j] = bool(effects & _SIGN_FRICTION) and not effects & _LOW_SPEED_SHAPES
+    mask = ~_slow_rows(s, joints)
     return None if mask.all() else mask
 
 

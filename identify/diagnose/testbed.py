@@ -21,6 +21,7 @@ Effects (`Injected.effect`):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -185,16 +186,19 @@ def rollout(
     duration_s: float = 10.0,
     rate_hz: float = 500.0,
     source: str = "testbed",
+    mjcf: str | Path | None = None,
 ) -> tuple[Plant, Dataset]:
     """Simulate `system` (a built-in name) with hidden `effects` under the testbed's own controller.
 
     The forces of `cogging`, `stribeck_friction` and the out-of-vocabulary effects act against the motion
     as the plant's passive forces (MuJoCo's `qfrc_applied`); what the sensor reports is the motor torque.
+    `mjcf`: another nominal MJCF of the same joints (a variant of the built-in one, e.g. with a frictionloss),
+    excited and measured with `system`'s settings.
 
     Returns:
         (the nominal plant, the measured record: time, q, tau, with tau_lead_s of half a sample).
     """
-    plant = load_plant(system)
+    plant = load_plant(mjcf if mjcf is not None else system)
     cfg = SYSTEMS[system]
     m = _hidden_model(plant, effects)
     d = mujoco.MjData(m)
@@ -310,19 +314,21 @@ def diagnose_records(
     *,
     train_s: float = 6.0,
     validation_s: float = 4.0,
+    mjcf: str | Path | None = None,
     **kwargs: Any,
 ) -> tuple[Plant, Any]:
     """Train on one `train_s` record per entry of `per_record` (each its own multi-sine and hidden effects, such
-    as a torque zero that changes between power-ups) and validate on a `validation_s` record with `validation`."""
+    as a torque zero that changes between power-ups) and validate on a `validation_s` record with `validation`
+    (`mjcf`: the nominal model, see `rollout`)."""
     from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
 
     rngs = np.random.default_rng(seed).spawn(len(per_record) + 1)
     train = []
     for i, effects in enumerate(per_record):
         source = "testbed_train" if len(per_record) == 1 else f"testbed_train_{i}"
-        plant, data = rollout(system, effects, rng=rngs[i], duration_s=train_s, source=source)
+        plant, data = rollout(system, effects, rng=rngs[i], duration_s=train_s, source=source, mjcf=mjcf)
         train.append(data)
-    _, val = rollout(system, validation, rng=rngs[-1], duration_s=validation_s, source="testbed_validation")
+    _, val = rollout(system, validation, rng=rngs[-1], duration_s=validation_s, source="testbed_validation", mjcf=mjcf)
     return plant, diagnose(
         plant, train, [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}, **kwargs
     )
