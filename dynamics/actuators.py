@@ -153,14 +153,40 @@ class Actuation:
         return out
 
     def ctrl_for_reference(
-        self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray, q_ref: np.ndarray, dq_ref: np.ndarray
+        self,
+        tau: np.ndarray,
+        q: np.ndarray,
+        dq: np.ndarray,
+        q_ref: np.ndarray,
+        dq_ref: np.ndarray,
+        tau_ref: np.ndarray | None = None,
     ) -> np.ndarray:
-        """(nu,) ctrl along a reference: a servo gets its target (an angle for a position servo, a speed for a
-        velocity servo, in actuator units: gear times the joint's), any other actuator the torque tau (nv,)."""
+        """(nu,) ctrl along a reference: any actuator but a servo the torque tau (nv,) at the state q, dq; a
+        servo its target in actuator units (gear times the joint's angle for a position servo, speed for a
+        velocity servo), shifted by the feedforward torque `tau_ref` (nv,) where given: the setpoint at which the
+        servo, on the reference state q_ref, dq_ref, applies tau_ref (`servo_setpoints`)."""
         out = self.ctrl_for_torque(tau, q, dq)
+        servo = self.servo_setpoints(q_ref[None], dq_ref[None], None if tau_ref is None else tau_ref[None])[0]
+        return np.where(np.isnan(servo), out, servo)
+
+    def servo_setpoints(self, q_ref: np.ndarray, dq_ref: np.ndarray, tau_ref: np.ndarray | None) -> np.ndarray:
+        """(n, nu) each servo's setpoint along a reference q_ref, dq_ref (n, nv) (NaN for the other actuators).
+
+        Without `tau_ref` (n, nv) it is the reference itself (gear q_ref or gear dq_ref). With it, the setpoint at
+        which the servo applies tau_ref on the reference state: kp (s - gear q) - kv gear dq = tau_ref / gear
+        for a position servo, s = gear q_ref + (tau_ref / gear + kv gear dq_ref) / kp, and kv (s - gear dq) =
+        tau_ref / gear for a velocity servo. A servo given the bare reference needs a tracking error of
+        tau / kp to apply any torque: gravity and inertia make it lag (0.146 rad on an SO-ARM100 at kp 50);
+        fed forward, its own gains only correct what the feedforward model gets wrong."""
+        out = np.full((len(q_ref), len(self.actuators)), np.nan)
         for i, a in enumerate(self.actuators):
-            if a.is_servo:
-                out[i] = a.gear * (q_ref[a.joint] if a.kind == "position" else dq_ref[a.joint])
+            if not a.is_servo:
+                continue
+            j = a.joint
+            out[:, i] = a.gear * (q_ref[:, j] if a.kind == "position" else dq_ref[:, j])
+            if tau_ref is not None:
+                bias = a.bias[0] + a.bias[1] * a.gear * q_ref[:, j] + a.bias[2] * a.gear * dq_ref[:, j]
+                out[:, i] = (tau_ref[:, j] / a.gear - bias) / a.gain
         return out
 
     def unclamped_torque(self, ctrl: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:

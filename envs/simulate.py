@@ -43,11 +43,14 @@ def simulate_tracking(
     bandwidth_hz: float = 4.0,
     damping_ratio: float = 1.0,
     hard_friction: bool = False,
+    servo_feedforward: bool = True,
 ) -> Dataset:
     """Track `reference` through the plant's actuators.
 
     A torque actuator (motor, general) gets PD feedback plus feedforward from the nominal model's inverse
-    dynamics; a servo (position, velocity) gets the reference as its target and tracks with its own gains.
+    dynamics; a servo (position, velocity) gets as its setpoint the reference shifted by that feedforward
+    (`Actuation.servo_setpoints`: on the reference it then applies the nominal torque) and tracks with its own
+    gains.
 
     Args:
         plant: the simulated system (it may hide effects the nominal model lacks).
@@ -60,6 +63,8 @@ def simulate_tracking(
             nominal mass matrix along the reference times omega^2 and 2 zeta omega).
         hard_friction: simulate `frictionloss` as Coulomb friction (`_hard_friction`), not MuJoCo's default
             soft constraint.
+        servo_feedforward: False gives a servo the bare reference as its target (firmware without torque
+            feedforward: it lags by the torque it applies over its kp).
 
     Returns:
         The measured dataset (angles and torques; velocities are not measured). `ddq` and
@@ -81,24 +86,23 @@ def simulate_tracking(
     kp, kd = omega**2, 2 * damping_ratio * omega
 
     actuation = plant.actuation
+    servo_ff = tau_ff if servo_feedforward else None
 
     def control(k: int, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         tau = tau_ff[k] + mass[k] @ (kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq))
-        return actuation.ctrl_for_reference(tau, q, dq, q_ref[k], dq_ref[k])
+        return actuation.ctrl_for_reference(
+            tau, q, dq, q_ref[k], dq_ref[k], servo_ff[k] if servo_ff is not None else None
+        )
 
     targets = None
     if any(a.is_servo for a in actuation.actuators):
         # a servo's setpoint comes from a fast trajectory generator, not a 2 ms staircase: a kp 2000 servo on
         # a light wrist answers each step within a physics step, and the sampled torque would be its spike
-        servo = np.array([a.is_servo for a in actuation.actuators])
 
         def targets(times: np.ndarray) -> np.ndarray:
-            q_sub, dq_sub, _ = reference.evaluate(times)
-            out = np.full((len(times), len(servo)), np.nan)
-            for i, a in enumerate(actuation.actuators):
-                if a.is_servo:
-                    out[:, i] = a.gear * (q_sub[:, a.joint] if a.kind == "position" else dq_sub[:, a.joint])
-            return out
+            q_sub, dq_sub, ddq_sub = reference.evaluate(times)
+            ff = inverse_dynamics(nominal, q_sub, dq_sub, ddq_sub) if servo_feedforward else None
+            return actuation.servo_setpoints(q_sub, dq_sub, ff)
 
     return _run(
         plant,

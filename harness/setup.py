@@ -128,6 +128,7 @@ def simulate_design(
         nominal=nominal,
         bandwidth_hz=float(cfg.system.controller.bandwidth_hz),
         hard_friction=bool(cfg.system.get("hard_friction", False)),
+        servo_feedforward=bool(OmegaConf.select(cfg, "system.controller.servo_feedforward", default=True)),
     )
 
 

@@ -261,6 +261,8 @@ def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
     _number(cfg, "noise.q_resolution", low=0.0)
     _number(cfg, "noise.tau_scale", low=0.0)
     _flag(cfg, "system.torque_driven")
+    if OmegaConf.select(cfg, "system.controller.servo_feedforward") is not None:
+        _flag(cfg, "system.controller.servo_feedforward")
     options = _value(cfg, "excitation.options")
     if options is not None and not isinstance(options, DictConfig):
         raise ConfigError(f"excitation.options must be a mapping, got {options!r}")

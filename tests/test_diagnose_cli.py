@@ -167,6 +167,26 @@ def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
     assert not out.exists() or not any(out.iterdir())
 
 
+def test_a_time_column_in_minutes_is_named_not_zero_equations(csv_files: list[Path], tmp_path: Path) -> None:
+    """A 500 Hz log timed in minutes reads as 30 kHz over a sixtieth of its length: the derivative filter's
+    start-up takes it all, and the refusal said "0 equations for 3 parameters"."""
+    paths = []
+    for p in csv_files:
+        lines = p.read_text().splitlines()
+        col = lines[0].split(",").index("time")
+        rows = [r.split(",") for r in lines[1:]]
+        for r in rows:
+            r[col] = repr(float(r[col]) / 60.0)
+        paths.append(tmp_path / p.name)
+        paths[-1].write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    out = tmp_path / "out"
+    with pytest.raises(
+        DataError, match=r"train\.csv: the derivative filter .* trusts 0 of .*time column is in seconds"
+    ):
+        cli.run(_config(paths, out))
+    assert not out.exists() or not any(out.iterdir())
+
+
 def test_a_data_configs_paths_are_relative_to_that_config_not_the_working_directory(tmp_path: Path) -> None:
     """A user's data config kept outside the repository (--config-dir) names its logs relative to itself."""
     from envs.sensors import SensorModel

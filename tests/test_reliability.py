@@ -401,6 +401,10 @@ def test_harmonics_are_bounded_by_the_sampling() -> None:
             [f"system.mjcf={REPO / 'mjcf' / 'two_link.xml'}", "system.limits.clearance_m=-1"],
             r"system\.limits\.clearance_m must be >= 0, got -1",
         ),
+        (
+            [f"system.mjcf={REPO / 'mjcf' / 'two_link.xml'}", "system.controller.servo_feedforward=2"],
+            r"system\.controller\.servo_feedforward must be true or false, got 2",
+        ),
     ],
 )
 def test_a_value_out_of_its_range_is_named_by_its_key(overrides: list[str], message: str) -> None:

@@ -63,9 +63,14 @@ class _Waves:
         return self.q0 + self.a * (1 - np.cos(wt)), self.a * self.w * np.sin(wt), self.a * self.w**2 * np.cos(wt)
 
 
-def _track(plant: Plant, reference: _Waves, duration_s: float = 0.4):  # type: ignore[no-untyped-def]
+def _track(plant: Plant, reference: _Waves, duration_s: float = 0.4, **kwargs):  # type: ignore[no-untyped-def]
     return simulate_tracking(
-        plant, reference, duration_s=duration_s, sensor=SensorModel(sample_rate_hz=500), rng=np.random.default_rng(0)
+        plant,
+        reference,
+        duration_s=duration_s,
+        sensor=SensorModel(sample_rate_hz=500),
+        rng=np.random.default_rng(0),
+        **kwargs,
     )
 
 
@@ -113,13 +118,13 @@ def test_menagerie_servo_arms_get_a_step_for_their_springs_not_their_implicit_da
 def test_a_clamped_servo_is_simulated_at_the_step_that_resolves_its_damper(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A position servo pulls towards zero speed: started at 0.94 rad/s, the wrist's -kv dq exceeds its 20 N m
-    range, and while clamped its damper is explicit (MuJoCo drops a clamped actuator's velocity derivative).
-    At the spring's step (1/6 ms, kv h / M = 133) it ran away, clamped for good at 6.25 rad/s (the xarm7's
-    wrist in a harness run: 5.7 rad/s and a torque RMS of 167 N m on held-out data)."""
+    """A position servo given the bare reference (no feedforward) pulls towards zero speed: started at 0.94 rad/s,
+    the wrist's -kv dq exceeds its 20 N m range, and while clamped its damper is explicit (MuJoCo drops a clamped
+    actuator's velocity derivative). At the spring's step (1/6 ms, kv h / M = 133) it ran away, clamped for good
+    at 6.25 rad/s (the xarm7's wrist in a harness run: 5.7 rad/s and a torque RMS of 167 N m on held-out data)."""
     plant = _arm(tmp_path, d1=2.0)
     reference = _Waves(np.zeros(2), np.array([0.0, 0.3]), sine=True)
-    data = _track(plant, reference, duration_s=0.1)
+    data = _track(plant, reference, duration_s=0.1, servo_feedforward=False)
     assert np.abs(data.meta["dq_true"][:, 1]).max() < 1.0  # the reference's largest speed is 0.94 rad/s
     assert data.meta["refined_samples"][:1] == [0] and len(data.meta["refined_samples"]) <= 3
     assert np.all(np.abs(data.meta["tau_applied"]) <= plant.tau_limit * (1 + 1e-9))  # no kv term beyond it
@@ -133,7 +138,7 @@ def test_a_clamped_servo_is_simulated_at_the_step_that_resolves_its_damper(
         return fine.model
 
     monkeypatch.setattr(simulate, "_servo_resolved", everywhere)
-    truth = _track(plant, reference, duration_s=0.1)
+    truth = _track(plant, reference, duration_s=0.1, servo_feedforward=False)
     assert truth.meta["refined_samples"] == []
     np.testing.assert_allclose(data.meta["q_true"], truth.meta["q_true"], atol=2e-4)
 
