@@ -310,15 +310,31 @@ def state_cutoff_hz(data: Dataset, method: str, **options: Any) -> float | None:
     return _cutoff(data, fs, options.get("cutoff_hz"), float(options.get("cutoff_factor", 4.0)))
 
 
+MIN_TRUSTED_ROWS = 10  # fewest rows the derivative filter must trust in a record
+
+
 def derive_states(data: Dataset, method: str, **options: Any) -> States:
     """q, dq, ddq of `data` by the named method (see `DERIVATIVES`), with its options.
 
     Raises:
         ValueError: unknown method (the message lists the valid ones) or a bad option.
+        DataError: the filter's start-up at both ends leaves fewer than `MIN_TRUSTED_ROWS` rows.
     """
     if method not in DERIVATIVES:
         raise ValueError(f"unknown derivative method {method!r}; valid choices: {', '.join(sorted(DERIVATIVES))}")
     states = DERIVATIVES[method](data, **options)
+    trusted = int(np.count_nonzero(states.valid))
+    if trusted < MIN_TRUSTED_ROWS:
+        span = float(data.time[-1] - data.time[0])
+        fs = (data.n_samples - 1) / span if span > 0 else float("nan")
+        cutoff = state_cutoff_hz(data, method, **options)
+        edge = f" (3 / cut-off = {3.0 / cutoff:.3g} s at each end at {cutoff:.3g} Hz)" if cutoff else ""
+        raise DataError(
+            f"{data.source}: the derivative filter ({method}) trusts {trusted} of the {data.n_samples} rows: "
+            f"its start-up{edge} takes the whole record, which lasts {span:.4g} s at {fs:.4g} Hz by its time "
+            "column. Give a longer record, or check that the time column is in seconds (a 500 Hz log timed in "
+            "minutes reads as 30 kHz over a sixtieth of its length)"
+        )
     if method in ("simulator", "given") or data.tau_lead_s == 0:
         return states  # the simulator's states already belong to the instant of the torque
     # Evaluate the (smooth, filtered) states at the instant the reported torque belongs to: a zero-order
