@@ -3,7 +3,8 @@ each run as `sysid-run system.mjcf=<file>` with nothing else (the full default l
 
 Per arm: cond(X'X) raw and column-normalised, the optimiser's time (wall and CPU), the finite-difference
 SLSQP baseline's time from the same start where it finishes within `FD_BUDGET_S` (else "> budget"),
-identification time, max |z|, the worst validation RMS over the sensor noise, limits and clearance.
+identification time, max |z|, the worst validation RMS over the sensor noise, limits and clearance of the design,
+and of the motion that ran (`excitation.simulated`: the worst bound's use and the largest tracking error).
 
 Writes bench/arms.json and bench/arms.md. Re-run: `.venv/bin/python -m bench arms` (from the repository root).
 """
@@ -98,6 +99,7 @@ def main() -> None:
             "validation_rms_over_noise": ratio,
             "limits_ok": r["excitation"]["limits_ok"],
             "clearance": r["excitation"]["clearance"],
+            "simulated": r["excitation"]["simulated"],
             "single_start": _one_start(overrides, "analytic"),
             "finite_difference": _one_start(overrides, "finite_difference") if model.name in FD_ARMS else None,
         }
@@ -110,8 +112,9 @@ def main() -> None:
         "",
         "| arm | DoF | cond(XᵀX) | cond col-norm | design, 4 starts [s] | 1 start: analytic [s] "
         "| 1 start: FD-SLSQP [s] "
-        "| identification [s] | max abs z | validation RMS / noise (worst joint) | limits | clearance [m] |",
-        "|---|---:|---:|---:|---:|---|---|---:|---:|---:|---|---|",
+        "| identification [s] | max abs z | validation RMS / noise (worst joint) | limits | clearance [m] "
+        "| motion that ran: worst bound | largest tracking error [rad] |",
+        "|---|---:|---:|---:|---:|---|---|---:|---:|---:|---|---|---|---:|",
     ]
     for r in rows:
         fd = r["finite_difference"]
@@ -122,11 +125,14 @@ def main() -> None:
         one = r["single_start"]
         clear = r["clearance"]
         clear_text = f"{clear['min_distance_m']:.3f} >= {clear['required_m']}" if clear else "n/a"
+        sim = r["simulated"]
+        sim_text = ("" if sim["holds"] else "BROKEN: ") + sim["worst"]
+        track = max(sim["tracking_error_max"].values())
         lines.append(
             f"| {r['arm']} | {r['dof']} | {r['cond_XtX']:.4g} | {r['cond_W_colnorm']:.3g} | "
             f"{r['excitation_wall_s']:.1f} | {one['wall_s']:.1f} / {one['cpu_s']:.1f} | {fd_text} | "
             f"{r['identification_wall_s']:.1f} | {r['max_abs_z']:.2f} | {r['validation_rms_over_noise']:.3f} | "
-            f"{'hold' if r['limits_ok'] else 'BROKEN'} | {clear_text} |"
+            f"{'hold' if r['limits_ok'] else 'BROKEN'} | {clear_text} | {sim_text} | {track:.4f} |"
         )
     (HERE / "arms.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
