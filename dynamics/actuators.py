@@ -152,22 +152,10 @@ class Actuation:
             out[i] = (tau[j] / a.gear - bias) / a.gain
         return out
 
-    def ctrl_for_reference(
-        self,
-        tau: np.ndarray,
-        q: np.ndarray,
-        dq: np.ndarray,
-        q_ref: np.ndarray,
-        dq_ref: np.ndarray,
-        tau_ref: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """(nu,) ctrl along a reference: any actuator but a servo the torque tau (nv,) at the state q, dq; a
-        servo its target in actuator units (gear times the joint's angle for a position servo, speed for a
-        velocity servo), shifted by the feedforward torque `tau_ref` (nv,) where given: the setpoint at which the
-        servo, on the reference state q_ref, dq_ref, applies tau_ref (`servo_setpoints`)."""
-        out = self.ctrl_for_torque(tau, q, dq)
-        servo = self.servo_setpoints(q_ref[None], dq_ref[None], None if tau_ref is None else tau_ref[None])[0]
-        return np.where(np.isnan(servo), out, servo)
+    def ctrl_for_reference(self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray, setpoints: np.ndarray) -> np.ndarray:
+        """(nu,) ctrl along a reference: each servo its setpoint (`setpoints` (nu,), a row of `servo_setpoints`),
+        any other actuator the joint torque tau (nv,) at the state q, dq."""
+        return np.where(np.isnan(setpoints), self.ctrl_for_torque(tau, q, dq), setpoints)
 
     def servo_setpoints(self, q_ref: np.ndarray, dq_ref: np.ndarray, tau_ref: np.ndarray | None) -> np.ndarray:
         """(n, nu) each servo's setpoint along a reference q_ref, dq_ref (n, nv) (NaN for the other actuators).
@@ -176,7 +164,7 @@ class Actuation:
         which the servo applies tau_ref on the reference state: kp (s - gear q) - kv gear dq = tau_ref / gear
         for a position servo, s = gear q_ref + (tau_ref / gear + kv gear dq_ref) / kp, and kv (s - gear dq) =
         tau_ref / gear for a velocity servo. A servo given the bare reference needs a tracking error of
-        tau / kp to apply any torque: gravity and inertia make it lag (0.146 rad on an SO-ARM100 at kp 50);
+        tau / kp to apply any torque: gravity and inertia make it lag (0.146 rad on an SO-ARM100's full run);
         fed forward, its own gains only correct what the feedforward model gets wrong."""
         out = np.full((len(q_ref), len(self.actuators)), np.nan)
         for i, a in enumerate(self.actuators):

@@ -31,6 +31,7 @@ __all__ = [
     "friction_parameters",
     "friction_shape",
     "friction_solver",
+    "ideal_friction",
     "ideal_friction_speed",
     "min_friction_speed",
 ]
@@ -55,6 +56,12 @@ def friction_shape(dq: np.ndarray, ddq: np.ndarray, speed: np.ndarray, lead: np.
     speed = np.asarray(speed, dtype=float)
     ramp = np.clip((dq + np.asarray(lead) * np.asarray(ddq)) / np.where(speed > 0, speed, 1.0), -1.0, 1.0)
     return np.where(speed > 0, ramp, np.sign(dq))
+
+
+def ideal_friction(frictionloss: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """(nv,) True where a dof's frictionloss is the ideal Coulomb term Fc sign(dq) (Fc > 0, no declared ramp:
+    `friction_parameters` gives it vt = 0)."""
+    return (np.asarray(frictionloss) > 0) & (np.asarray(speed) == 0)  # type: ignore[no-any-return]
 
 
 def friction_enabled(m: mujoco.MjModel) -> bool:

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from dynamics.errors import ModelError
-from dynamics.friction import friction_parameters
+from dynamics.friction import friction_parameters, ideal_friction
 from dynamics.plant import Plant
 from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
@@ -86,13 +86,11 @@ def simulate_tracking(
     kp, kd = omega**2, 2 * damping_ratio * omega
 
     actuation = plant.actuation
-    servo_ff = tau_ff if servo_feedforward else None
+    setpoints = actuation.servo_setpoints(q_ref, dq_ref, tau_ff if servo_feedforward else None)  # once, not per step
 
     def control(k: int, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         tau = tau_ff[k] + mass[k] @ (kp * (q_ref[k] - q) + kd * (dq_ref[k] - dq))
-        return actuation.ctrl_for_reference(
-            tau, q, dq, q_ref[k], dq_ref[k], servo_ff[k] if servo_ff is not None else None
-        )
+        return actuation.ctrl_for_reference(tau, q, dq, setpoints[k])
 
     targets = None
     if any(a.is_servo for a in actuation.actuators):
@@ -199,7 +197,7 @@ def _hard_friction(m: mujoco.MjModel) -> mujoco.MjModel:
     and impedance 0.999, brings v* below 1e-3 rad/s on every shared arm at no extra cost per step. A dof
     whose friction is a declared ramp (`dynamics.friction`, as a calibrated MJCF writes it) keeps its own.
     """
-    dofs = (m.dof_frictionloss > 0) & (friction_parameters(m)[0] == 0)  # a declared ramp stays as written
+    dofs = ideal_friction(m.dof_frictionloss, friction_parameters(m)[0])  # a declared ramp stays as written
     m.dof_solref[dofs] = [2.0 * m.opt.timestep, 1.0]
     m.dof_solimp[dofs, :2] = _FRICTION_IMPEDANCE
     return m

@@ -326,13 +326,15 @@ def derive_states(data: Dataset, method: str, **options: Any) -> States:
     trusted = int(np.count_nonzero(states.valid))
     if trusted < MIN_TRUSTED_ROWS:
         span = float(data.time[-1] - data.time[0])
-        fs = (data.n_samples - 1) / span if span > 0 else float("nan")
         cutoff = state_cutoff_hz(data, method, **options)
-        edge = f" (3 / cut-off = {3.0 / cutoff:.3g} s at each end at {cutoff:.3g} Hz)" if cutoff else ""
+        trim_s = options.get("trim_s")
+        edge = ""
+        if cutoff:
+            edge = f" ({trim_s if trim_s is not None else 3.0 / cutoff:.3g} s at each end at {cutoff:.3g} Hz)"
         raise DataError(
             f"{data.source}: the derivative filter ({method}) trusts {trusted} of the {data.n_samples} rows: "
-            f"its start-up{edge} takes the whole record, which lasts {span:.4g} s at {fs:.4g} Hz by its time "
-            "column. Give a longer record, or check that the time column is in seconds (a 500 Hz log timed in "
+            f"its start-up{edge} takes the whole record, which lasts {span:.4g} s at {1.0 / data.dt:.4g} Hz by its "
+            "time column. Give a longer record, or check that the time column is in seconds (a 500 Hz log timed in "
             "minutes reads as 30 kHz over a sixtieth of its length)"
         )
     if method in ("simulator", "given") or data.tau_lead_s == 0:

@@ -147,15 +147,17 @@ def test_every_actuator_kind_applies_the_torque_it_is_asked_for() -> None:
         mujoco.mj_forward(m, d)
         np.testing.assert_allclose(d.qfrc_actuator, tau, atol=1e-12)
         np.testing.assert_allclose(actuation.unclamped_torque(d.ctrl, q, dq), tau, atol=1e-12)
-    targets = actuation.ctrl_for_reference(np.zeros(4), q, dq, np.full(4, 0.3), np.full(4, -0.2))
+    bare = actuation.servo_setpoints(np.full((1, 4), 0.3), np.full((1, 4), -0.2), None)[0]
+    targets = actuation.ctrl_for_reference(np.zeros(4), q, dq, bare)
     assert targets[1] == pytest.approx(0.3) and targets[2] == pytest.approx(-0.2)
     # fed forward, a servo's setpoint makes it apply the feedforward torque on the reference state
     q_ref, dq_ref, tau_ref = rng.normal(size=4), rng.normal(size=4), rng.normal(size=4)
     d.qpos[:], d.qvel[:] = q_ref, dq_ref
-    d.ctrl[:] = actuation.ctrl_for_reference(tau, q, dq, q_ref, dq_ref, tau_ref)
+    setpoints = actuation.servo_setpoints(q_ref[None], dq_ref[None], tau_ref[None])[0]
+    d.ctrl[:] = actuation.ctrl_for_reference(tau, q, dq, setpoints)
     mujoco.mj_forward(m, d)
     np.testing.assert_allclose(d.qfrc_actuator[1:3], tau_ref[1:3], atol=1e-12)
-    assert np.isnan(actuation.servo_setpoints(q_ref[None], dq_ref[None], tau_ref[None])[0, [0, 3]]).all()
+    assert np.isnan(setpoints[[0, 3]]).all()
 
 
 @pytest.mark.skipif(not ARMS, reason="../shared/robots/ is not beside the project (clone with shared/)")
