@@ -68,7 +68,9 @@ def simulate_tracking(
 
     Returns:
         The measured dataset (angles and torques; velocities are not measured). `ddq` and
-        `meta["q_true"]`, `meta["dq_true"]` hold the simulator's exact states at the sample times.
+        `meta["q_true"]`, `meta["dq_true"]` hold the simulated motion's exact states at the sample times (the
+        velocity of the continuous motion through the sampled positions, see `_StepTerms`), and
+        `meta["tau_applied"]` the torque that gives that motion's acceleration at those states.
     """
     if not np.all(plant.actuated):
         unact = [n for n, a in zip(plant.joint_names, plant.actuated, strict=True) if not a]
@@ -279,23 +281,62 @@ class _Clamp:
         return bool(np.any(_at_force_range(m, d)[self.watched]))
 
 
-def _implicit_damping(plant: Plant, m: mujoco.MjModel) -> np.ndarray | None:
-    """(nv,) c such that reported torque = qfrc_actuator + c (v_next - v) undoes the integrator's implicit damping.
+class _StepTerms:
+    """What turns one MuJoCo step into data of the continuous-time robot at the sample instant.
 
-    MuJoCo's implicit integrators (and Euler, for joint damping) evaluate velocity-proportional forces at the
-    end of the step: the motion satisfies M a + d v_next = tau(v_next), not M a + d v = tau(v), which looks
-    like an extra inertia h (d + kv) (0.9 kg m^2 for a servo of kv 450 at h = 2 ms, nine times a typical
-    armature). Reporting the torque as qfrc_actuator + (b2 gear^2 - d)(v_next - v) with the step's acceleration
-    (v_next - v) / h gives data of the continuous-time robot. None where nothing is implicit. An actuator
-    whose force is clamped has no velocity derivative in that step: `_run` takes its term out.
+    MuJoCo's semi-implicit integrators (Euler, implicit, implicitfast) move the positions by the velocity at
+    the end of the step: the sampled positions are those of a continuous motion whose velocity at the sample
+    is the step's mean, v + dv / 2 (`mean_velocity`), and that is what a zero-phase derivative of the
+    positions recovers. But the step's forces are evaluated at v (Coriolis, explicit dampers) or at the end
+    of the step, v + dv (what the integrator takes implicitly): a damper d then acts as an extra inertia of
+    d h / 2 (-0.001 kg m^2 on each of the Panda's wrist armatures, 3 std, for d = 1 at h = 2 ms) and the
+    Coriolis torque is half a step old. The reported torque is the one that gives the same acceleration at
+    the mean velocity: the actuator's force in the step (its implicit velocity gain b2 gear^2 taken at
+    v + dv, unless it is clamped: `_run` drops it there), plus d (v + dv / 2 - v_used) for the joint dampers
+    and bias(q, v + dv / 2) - bias(q, v_used) for the Coriolis forces (v_used: v + dv where the integrator
+    takes them implicitly, implicit alone for Coriolis; v otherwise). RK4's state is the continuous one: none.
     """
-    joint_implicit, actuator_implicit = _implicit_terms(m)
-    out = np.zeros(plant.nv)
-    if joint_implicit:
-        out -= plant.damping
-    if actuator_implicit:
-        np.add.at(out, plant.actuation.joints, _velocity_gains(plant))
-    return out if np.any(out) else None
+
+    def __init__(self, plant: Plant, m: mujoco.MjModel) -> None:
+        joint_implicit, actuator_implicit = _implicit_terms(m)
+        integrator = int(m.opt.integrator)
+        self.semi_implicit = integrator != int(mujoco.mjtIntegrator.mjINT_RK4)
+        self.coriolis_implicit = integrator == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
+        self.gains = _velocity_gains(plant) if actuator_implicit else np.zeros(len(plant.actuation.actuators))
+        half = 0.5 * plant.damping if self.semi_implicit else np.zeros(plant.nv)
+        self.damping = -half if joint_implicit else half  # times dv: d (v + dv / 2 - v_used)
+        self.joints = plant.actuation.joints
+        self._scratch = mujoco.MjData(m)
+
+    def mean_velocity(self, v: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """(nv,) the continuous motion's velocity at the sample, from the step's start v and change dv."""
+        return v + 0.5 * dv if self.semi_implicit else v
+
+    def correction(self, m: mujoco.MjModel, d_before: _Before, dv: np.ndarray, clamped: np.ndarray) -> np.ndarray:
+        """(nv,) what to add to the step's qfrc_actuator (d_before: the forward pass at the sample)."""
+        if not self.semi_implicit:
+            return np.zeros_like(dv)
+        gains = np.where(clamped, 0.0, self.gains)
+        out = np.bincount(self.joints, gains, minlength=len(dv)) * dv + self.damping * dv
+        v_used = d_before.qvel + dv if self.coriolis_implicit else d_before.qvel
+        bias_used = d_before.qfrc_bias if not self.coriolis_implicit else self._bias(m, d_before.qpos, v_used)
+        return out + self._bias(m, d_before.qpos, self.mean_velocity(d_before.qvel, dv)) - bias_used
+
+    def _bias(self, m: mujoco.MjModel, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        s = self._scratch
+        s.qpos[:], s.qvel[:] = q, v
+        mujoco.mj_fwdPosition(m, s)
+        mujoco.mj_fwdVelocity(m, s)
+        return s.qfrc_bias.copy()
+
+
+@dataclass(frozen=True)
+class _Before:
+    """The state and bias force of a sample's forward pass, before its step."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    qfrc_bias: np.ndarray
 
 
 def _implicit_terms(m: mujoco.MjModel) -> tuple[bool, bool]:
@@ -393,10 +434,7 @@ def _run(
         )
     n, nv = len(t), m.nv
     q, dq, ddq, applied, clamped, cmd, constraint = (np.empty((n, nv)) for _ in range(7))
-    implicit = _implicit_damping(plant, m)
-    # the velocity gains MuJoCo takes implicitly, each dropped in a step where its actuator's force is clamped
-    dropped = _velocity_gains(plant) if implicit is not None and _implicit_terms(m)[1] else None
-    joints = plant.actuation.joints
+    terms = _StepTerms(plant, m)
     clamp = _Clamp.of(plant, q0, m)
     kind = mujoco.mjtState.mjSTATE_INTEGRATION
     start = np.empty(mujoco.mj_stateSize(m, kind))
@@ -413,9 +451,8 @@ def _run(
         constraint[k] = d.qfrc_constraint
         if d.ncon:
             _pressing(d, k, touching)
-        damping = implicit
-        if implicit is not None and dropped is not None:
-            damping = implicit - np.bincount(joints, dropped * _at_force_range(m, d), minlength=nv)
+        # MuJoCo drops a clamped actuator's velocity derivative from the implicit step
+        before, at_range = _Before(*state, d.qfrc_bias.copy()), _at_force_range(m, d)
         if clamp is not None:
             mujoco.mj_getState(m, d, start, kind)
         h, step = m.opt.timestep, _interval(m, d, fine, substeps, clamp)
@@ -426,9 +463,9 @@ def _run(
             step = _interval(clamp.model, d, next(_setpoints(targets, t[k : k + 1], h, count)), count, None)
             refined.append(k)
         assert step is not None
-        if damping is not None:  # the step's own acceleration, and the torque that produced it
-            ddq[k] = step / h
-            applied[k] = applied[k] + damping * step
+        if terms.semi_implicit:  # the step's own acceleration, the velocity and torque of the continuous motion
+            ddq[k], dq[k] = step / h, terms.mean_velocity(state[1], step)
+            applied[k] = applied[k] + terms.correction(m, before, step, at_range)
         if not np.all(np.isfinite(d.qpos)):
             raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")
     if sensor.delay_s > 0:
@@ -448,8 +485,9 @@ def _run(
         tau_cmd=cmd,
         # the command is held over [t_k, t_k + dt); semi-implicit Euler makes the sampled positions trail the
         # continuous motion by half a physics step, so the torque's instant is (dt - h) / 2 after the sample
-        # (a servo's torque is not held: it is sampled with the state it depends on, at the same instant)
-        tau_lead_s=0.0 if plant.actuation.servo else 0.5 * (dt_sample - m.opt.timestep),
+        # (dt / 2 under RK4, whose state is the continuous one; a servo's torque is not held: it is sampled
+        # with the state it depends on, at the same instant)
+        tau_lead_s=0.0 if plant.actuation.servo else 0.5 * (dt_sample - (m.opt.timestep if terms.semi_implicit else 0)),
         meta={
             "q_true": q,
             "dq_true": dq,
