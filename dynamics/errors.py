@@ -18,7 +18,16 @@ class DataError(SysIdError, ValueError):
 
 
 class InfeasibleExcitationError(SysIdError, ValueError):
-    """No trajectory meets the limits; the message names the binding constraint."""
+    """No trajectory meets the limits; the message names the binding constraint.
+
+    Attributes:
+        bound: the kind of that bound (`q`, `dq`, `ddq`, `tau` or `clearance`), or None where not known; a
+            caller that built the limits from its own settings names the setting from it.
+    """
+
+    def __init__(self, message: str, *, bound: str | None = None) -> None:
+        super().__init__(message)
+        self.bound = bound
 
 
 class RankDeficientError(SysIdError, ValueError):

@@ -119,7 +119,7 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
             "ddq": np.min(limits.ddq_max / ddq_unit),
         }
     if bounds["q"] < 0:
-        raise InfeasibleExcitationError(f"offset q0 = {shape.q0} lies outside the joint range (binding: q)")
+        raise InfeasibleExcitationError(f"offset q0 = {shape.q0} lies outside the joint range (binding: q)", bound="q")
     s_hi = float(min(bounds.values()))
     binding = min(bounds, key=lambda k: bounds[k])
 
@@ -133,7 +133,8 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
     if torque_ratio(0.0) > 1.0:
         raise InfeasibleExcitationError(
             f"holding the offset q0 = {shape.q0} already needs more torque than tau_max = {limits.tau_max} "
-            "(binding: tau)"
+            "(binding: tau)",
+            bound="tau",
         )
     if torque_ratio(s_hi) > 1.0:
         binding, lo, hi = "tau", 0.0, s_hi
@@ -145,7 +146,8 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
     if motion < min_motion_rad:
         raise InfeasibleExcitationError(
             f"the limits allow at most {motion:.3g} rad of motion (< {min_motion_rad} rad): binding constraint "
-            f"{limits.binding({binding: 1.0}, dev, dq1)}; relax it or lower the base frequency"
+            f"{limits.binding({binding: 1.0}, dev, dq1)}; relax it or lower the base frequency",
+            bound=binding,
         )
     return shape.scaled(s_hi)
 
@@ -206,7 +208,8 @@ def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, per
                 break
             raise InfeasibleExcitationError(
                 f"no torque amplitude down to {scales[0]:.3g} x the shape keeps the limits: binding constraint "
-                f"{limits.binding(last_ratios, q[-1], dq[-1])}"
+                f"{limits.binding(last_ratios, q[-1], dq[-1])}",
+                bound=limits.binding_key(last_ratios),
             )
         best = int(feasible.max())
         lo = float(scales[best])

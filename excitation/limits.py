@@ -73,9 +73,14 @@ class Limits:
             out["tau"] = np.max(np.abs(tau) / self.tau_max, axis=0)
         return out
 
+    @staticmethod
+    def binding_key(ratios: dict[str, float]) -> str:
+        """The kind of the most used bound (`q`, `dq`, `ddq`, `tau` or `clearance`)."""
+        return max(ratios, key=lambda k: ratios[k])
+
     def binding(self, ratios: dict[str, float], q: np.ndarray, dq: np.ndarray) -> str:
         """A readable name of the most used bound, e.g. `dq[elbow] <= 8 rad/s`."""
-        key = max(ratios, key=lambda k: ratios[k])
+        key = self.binding_key(ratios)
         if key == "clearance" and self.clearance is not None:
             return f"clearance (at least {self.clearance.clearance_m:.3g} m between links and to the floor)"
         units = {"q": "rad", "dq": "rad/s", "ddq": "rad/s^2", "tau": "N m"}

@@ -491,7 +491,8 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
         q = np.broadcast_to(design.q0, (1, plant.nv))
         raise InfeasibleExcitationError(
             f"the optimised offsets q0 = {design.q0} break a limit at rest: binding constraint "
-            f"{limits.binding(ratios, q, np.zeros_like(q))}"
+            f"{limits.binding(ratios, q, np.zeros_like(q))}",
+            bound=limits.binding_key(ratios),
         )
     lo, hi = 0.0, 1.0
     for _ in range(20):

@@ -161,10 +161,11 @@ class TorqueSearch:
         ok = viol == 0
         if not ok.any():
             worst = ratios[int(np.argmin(viol))]
+            scaled = "scaled to the limits" if self.fill else f"down to {fractions[-1]:.3g} x the torque bound"
             raise InfeasibleExcitationError(
-                f"no drive torque down to {fractions[-1]:.3g} x the torque bound keeps the simulated motion within "
-                f"the limits: binding constraint {self._binding(worst)} (worst use of each bound: "
-                f"{ {k: round(v, 3) for k, v in worst.items()} })"
+                f"no drive torque {scaled} keeps the simulated motion within the limits: binding constraint "
+                f"{self._binding(worst)} (worst use of each bound: { ({k: round(v, 3) for k, v in worst.items()}) })",
+                bound=self.limits.binding_key(worst),
             )
         best = int(np.argmin(np.where(ok, values, np.inf)))
         per_start = np.where(ok, conds, np.inf).reshape(len(shapes), len(fractions)).min(axis=1)
@@ -216,7 +217,8 @@ class TorqueSearch:
         if ok.size == 0:
             raise InfeasibleExcitationError(
                 f"the optimised drive torque breaks a limit on the dense grid even at {fractions[-1]:.2f} x its "
-                f"amplitude: binding constraint {self._binding(ratios[-1])}"
+                f"amplitude: binding constraint {self._binding(ratios[-1])}",
+                bound=self.limits.binding_key(ratios[-1]),
             )
         return cands[int(ok[0])]
 

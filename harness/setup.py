@@ -15,6 +15,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dynamics.base import BaseParameters, base_parameters
+from dynamics.errors import InfeasibleExcitationError
 from dynamics.plant import SYSTEMS, Plant, load_plant
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
@@ -156,15 +157,33 @@ def design_from_config(
 ) -> FourierDesign:
     """The excitation `name` for the experiment; the config's options apply to the configured design only."""
     options = OmegaConf.to_container(cfg.excitation.options, resolve=True) if name == cfg.excitation.name else {}
-    return design_excitation(
-        name,
-        exp.plant,
-        exp.limits,
-        model=exp.model,
-        harmonics=int(cfg.excitation.harmonics),
-        base_freq_hz=float(cfg.system.base_freq_hz),
-        torque_driven=bool(cfg.system.torque_driven),
-        rng=rng,
-        progress=progress,
-        **options,  # type: ignore[arg-type]
-    )
+    try:
+        return design_excitation(
+            name,
+            exp.plant,
+            exp.limits,
+            model=exp.model,
+            harmonics=int(cfg.excitation.harmonics),
+            base_freq_hz=float(cfg.system.base_freq_hz),
+            torque_driven=bool(cfg.system.torque_driven),
+            rng=rng,
+            progress=progress,
+            **options,  # type: ignore[arg-type]
+        )
+    except InfeasibleExcitationError as err:
+        if err.bound not in LIMIT_SETTINGS:
+            raise
+        slower = "" if "base frequency" in str(err) else "; a lower system.base_freq_hz asks less speed of the motion"
+        raise InfeasibleExcitationError(
+            f"{err}; that bound comes from {LIMIT_SETTINGS[err.bound]}{slower}", bound=err.bound
+        ) from err
+
+
+# the setting behind each kind of bound that `limits_from_config` builds
+LIMIT_SETTINGS = {
+    "q": "the model's joint ranges (and position servos' ctrlrange) less system.limits.range_margin",
+    "dq": "system.limits.velocity (and velocity servos' ctrlrange)",
+    "ddq": "system.limits.acceleration",
+    "tau": "the actuators' force limits times system.limits.torque_margin",
+    "clearance": "system.limits.clearance_m",
+}

@@ -11,6 +11,7 @@ import pytest
 from hydra.errors import HydraException, MissingConfigException
 from omegaconf.errors import OmegaConfBaseException
 
+from dynamics.errors import InfeasibleExcitationError
 from harness.run import run
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
@@ -87,6 +88,18 @@ def test_failed_run_leaves_no_results(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="binding constraint"):
         run(cfg, output_dir=tmp_path)
     assert not (tmp_path / "results.json").exists()
+
+
+def test_an_open_loop_design_no_torque_can_keep_names_its_bound_and_setting(tmp_path: Path) -> None:
+    # the wheel pendulum's unactuated joint may not move faster than 0.01 rad/s: the torque search fails, and
+    # says which bound and which key set it (it used to say "down to 1 x the torque bound" after filling)
+    cfg = compose_config(["record=none", "system=wheel_pendulum", "system.limits.velocity=[0.01,150]"])
+    with pytest.raises(InfeasibleExcitationError) as err:
+        run(cfg, output_dir=tmp_path)
+    message = str(err.value)
+    assert "binding constraint dq (bound pendulum 0.01, wheel 150 rad/s)" in message
+    assert "scaled to the limits" in message and "comes from system.limits.velocity" in message
+    assert err.value.bound == "dq" and not (tmp_path / "results.json").exists()
 
 
 def test_results_json_is_replaced_whole(tmp_path: Path) -> None:

@@ -699,6 +699,7 @@ def test_seed_abc_names_the_key(tmp_path: Path) -> None:
 def test_a_failed_single_run_writes_failure_json_and_its_log(tmp_path: Path) -> None:
     proc = _cli("system=pendulum", "record=none", "system.limits.acceleration=1e-6", f"hydra.run.dir={tmp_path}")
     _one_line_error(proc, "binding constraint ddq")
+    assert "that bound comes from system.limits.acceleration" in proc.stderr  # the setting to relax, by its key
     failure = json.loads((tmp_path / "failure.json").read_text())
     assert failure["error"].startswith("InfeasibleExcitationError: ") and "Traceback" in failure["traceback"]
     assert "binding constraint ddq" in (tmp_path / "sysid-run.log").read_text()
