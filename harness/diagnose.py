@@ -417,13 +417,19 @@ def _findings_markdown(result: Diagnosis, units: dict[str, dict[str, str]]) -> s
     ]
     for f in result.findings:
         lines.append(f"| {f.name} | {f.target} | {f.value:.5g} | {f.std:.2g} | {f.unit} | {f.at_bound or ''} |")
-    lines += ["", "| model | joint | torque RMS | simulation error |", "|---|---|---:|---:|"]
+    lines += [
+        "",
+        "| model | joint | torque RMS | on the torques judged | simulation error |",
+        "|---|---|---:|---:|---:|",
+    ]
     for model, m in result.models.items():
         for j, v in m["torque_rms"].items():
             sim = m.get("simulation_error", {}).get(j)
             u = units[j]
             err = "-" if sim is None else f"{sim:.4g} {u['angle']}"
-            lines.append(f"| {model} | {j} | {v:.4g} {u['torque']} | {err} |")
+            judged = m.get("torque_rms_judged", {}).get(j)
+            judged_text = "-" if judged is None else f"{judged:.4g} {u['torque']}"
+            lines.append(f"| {model} | {j} | {v:.4g} {u['torque']} | {judged_text} | {err} |")
     return "\n".join(lines)
 
 
@@ -452,6 +458,9 @@ def _summary(payload: dict[str, Any]) -> str:
         tau = ", ".join(f"{j} {v:.4f} {unit(j, 'torque')}" for j, v in m["torque_rms"].items())
         sim = ", ".join(f"{j} {v:.4f} {unit(j, 'angle')}" for j, v in m.get("simulation_error", {}).items())
         lines.append(f"  {model:18s} torque RMS: {tau}; simulation error: {sim or '-'}")
+        if "torque_rms_judged" in m:
+            judged = ", ".join(f"{j} {v:.4f} {unit(j, 'torque')}" for j, v in m["torque_rms_judged"].items())
+            lines.append(f"  {'':18s} on the torques the verdict judges: {judged}")
     spread = payload.get("info", {}).get("prediction_std")
     if spread and any(v > 0 for v in spread.values()):  # no effect found: nothing was fitted
         std = ", ".join(f"{j} {v:.4f} {unit(j, 'torque')}" for j, v in spread.items())

@@ -291,6 +291,10 @@ def test_a_joint_held_by_its_nominal_frictionloss_is_not_a_discrepancy(
     assert any("at rest or turning round" in n for n in dg.notes)
     if expected is None:
         assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])
+        # the RMS over every torque carries the friction-held ones; the one over the torques judged does not
+        judged, every = dg.models["calibrated"]["torque_rms_judged"], dg.models["calibrated"]["torque_rms"]
+        for joint, noise in dg.noise_floor.items():
+            assert judged[joint] < 0.5 * every[joint] and judged[joint] < 1.5 * noise, (joint, judged, every, noise)
         return
     assert dg.verdict == "explained", (dg.verdict_reason, [f.name for f in dg.findings])
     assert [(f.effect, f.target) for f in dg.findings] == [expected]

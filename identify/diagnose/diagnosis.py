@@ -172,7 +172,9 @@ class Diagnosis:
         verdict: `explained`, `unexplained_structure` or `no_discrepancy`.
         findings: most important first.
         models: per model name (`nominal`, `rigid_body_refit`, `calibrated`, references):
-            {`torque_rms` {joint}, `simulation_error` {joint}} on the validation records.
+            {`torque_rms` {joint}, `simulation_error` {joint}} on the validation records, and where some
+            torques are left out of the fit and the verdict (a joint resting in its nominal frictionloss, too
+            slow for Coulomb friction) `torque_rms_judged` {joint} over the rest.
         residual: residual analysis of the nominal model on the training records.
         whiteness: per joint, of the nominal and the calibrated residual on the validation records.
         noise_floor: per joint torque noise std [N m].
@@ -603,8 +605,12 @@ def diagnose(
             preds[name] = ref.torque(s_va.q, s_va.dq, s_va.ddq)
             if ref.accel is not None:
                 sims[name] = _sim_error_ode(ref, va, window_s)
+        some_left_out = s_va.used is not None and not bool(np.all(s_va.used))
         for name, pred in preds.items():
-            models[name] = {"torque_rms": _per_joint(names, _rms(s_va.smooth(pred), s_va.smooth(s_va.tau)))}
+            error = s_va.smooth(s_va.tau) - s_va.smooth(pred)
+            models[name] = {"torque_rms": _per_joint(names, np.sqrt(np.mean(error**2, axis=0)))}
+            if some_left_out:  # the rows the fit and the verdict judge (resting in friction, too slow: left out)
+                models[name]["torque_rms_judged"] = _per_joint(names, s_va.used_rms(error))
             if name in sims:
                 models[name]["simulation_error"] = _per_joint(names, sims[name])
         friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
