@@ -256,7 +256,7 @@ COVERAGE_SEEDS = {"pendulum": 200, "two_link": 100, "arm3": 20, ARM7: 10}
 COVERAGE_SLOW_SEEDS = {"pendulum": 200, "two_link": 100, "arm3": 20, ARM7: 6}
 COVERAGE_GRADIENT_SEEDS = {"pendulum": 10, "two_link": 6, "arm3": 4, ARM7: 3}  # its std is mostly withheld
 _COVERAGE_SLOW = ("iv", "rls", "physical")
-# measured seconds per run (bench/estimators_coverage.md), to start the longest tasks first
+# measured seconds per run (the coverage table of bench/estimators.md), to start the longest tasks first
 _COVERAGE_COST = {"pendulum": 1.0, "two_link": 3.0, "arm3": 8.0, ARM7: 50.0}
 _COVERAGE_COST_FACTOR = {"physical": 3.0, "gradient": 2.0, "iv": 1.5}
 _COVERAGE_CASES: dict[str, CoverageCase] = {}
