@@ -306,37 +306,45 @@ class _StepTerms:
         half = 0.5 * plant.damping if self.semi_implicit else np.zeros(plant.nv)
         self.damping = -half if joint_implicit else half  # times dv: d (v + dv / 2 - v_used)
         self.joints = plant.actuation.joints
+        self.any_gain = bool(np.any(self.gains))  # only then may a clamp change the correction
+        self._joint_gains = np.bincount(self.joints, self.gains, minlength=plant.nv)
+        # one joint on the world has a constant inertia, hence no Coriolis torque
+        self._coriolis = plant.nv > 1
         self._scratch = mujoco.MjData(m)
 
     def mean_velocity(self, v: np.ndarray, dv: np.ndarray) -> np.ndarray:
         """(nv,) the continuous motion's velocity at the sample, from the step's start v and change dv."""
         return v + 0.5 * dv if self.semi_implicit else v
 
-    def correction(self, m: mujoco.MjModel, d_before: _Before, dv: np.ndarray, clamped: np.ndarray) -> np.ndarray:
-        """(nv,) what to add to the step's qfrc_actuator (d_before: the forward pass at the sample)."""
+    def correction(
+        self, m: mujoco.MjModel, q: np.ndarray, v: np.ndarray, dv: np.ndarray, clamped: np.ndarray | None
+    ) -> np.ndarray:
+        """(nv,) what to add to the step's qfrc_actuator, for the step from (q, v) that changed v by dv, with
+        `clamped` (nu,) the actuators at their force range, or None where none can be (`any_gain` False)."""
         if not self.semi_implicit:
             return np.zeros_like(dv)
-        gains = np.where(clamped, 0.0, self.gains)
-        out = np.bincount(self.joints, gains, minlength=len(dv)) * dv + self.damping * dv
-        v_used = d_before.qvel + dv if self.coriolis_implicit else d_before.qvel
-        bias_used = d_before.qfrc_bias if not self.coriolis_implicit else self._bias(m, d_before.qpos, v_used)
-        return out + self._bias(m, d_before.qpos, self.mean_velocity(d_before.qvel, dv)) - bias_used
+        gains = self._joint_gains
+        if clamped is not None and np.any(clamped):
+            gains = np.bincount(self.joints, np.where(clamped, 0.0, self.gains), minlength=len(dv))
+        out = (gains + self.damping) * dv
+        if not self._coriolis:
+            return out
+        v_used = v + dv if self.coriolis_implicit else v
+        return out + self._bias_change(m, q, v_used, self.mean_velocity(v, dv))
 
-    def _bias(self, m: mujoco.MjModel, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def _bias_change(self, m: mujoco.MjModel, q: np.ndarray, v_from: np.ndarray, v_to: np.ndarray) -> np.ndarray:
+        """(nv,) bias(q, v_to) - bias(q, v_from): Coriolis and centrifugal torque by MuJoCo's RNE (without
+        acceleration), both at one kinematics pass (no collision or mass matrix: the bias needs neither)."""
         s = self._scratch
-        s.qpos[:], s.qvel[:] = q, v
-        mujoco.mj_fwdPosition(m, s)
-        mujoco.mj_fwdVelocity(m, s)
-        return s.qfrc_bias.copy()
-
-
-@dataclass(frozen=True)
-class _Before:
-    """The state and bias force of a sample's forward pass, before its step."""
-
-    qpos: np.ndarray
-    qvel: np.ndarray
-    qfrc_bias: np.ndarray
+        s.qpos[:] = q
+        mujoco.mj_kinematics(m, s)
+        mujoco.mj_comPos(m, s)
+        out = np.empty((2, m.nv))
+        for i, v in enumerate((v_to, v_from)):
+            s.qvel[:] = v
+            mujoco.mj_comVel(m, s)
+            mujoco.mj_rne(m, s, 0, out[i])
+        return out[0] - out[1]
 
 
 def _implicit_terms(m: mujoco.MjModel) -> tuple[bool, bool]:
@@ -451,8 +459,8 @@ def _run(
         constraint[k] = d.qfrc_constraint
         if d.ncon:
             _pressing(d, k, touching)
-        # MuJoCo drops a clamped actuator's velocity derivative from the implicit step
-        before, at_range = _Before(*state, d.qfrc_bias.copy()), _at_force_range(m, d)
+        # MuJoCo drops a clamped actuator's velocity derivative from its step
+        at_range = _at_force_range(m, d) if terms.any_gain else None
         if clamp is not None:
             mujoco.mj_getState(m, d, start, kind)
         h, step = m.opt.timestep, _interval(m, d, fine, substeps, clamp)
@@ -465,7 +473,7 @@ def _run(
         assert step is not None
         if terms.semi_implicit:  # the step's own acceleration, the velocity and torque of the continuous motion
             ddq[k], dq[k] = step / h, terms.mean_velocity(state[1], step)
-            applied[k] = applied[k] + terms.correction(m, before, step, at_range)
+            applied[k] = applied[k] + terms.correction(m, *state, step, at_range)
         if not np.all(np.isfinite(d.qpos)):
             raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")
     if sensor.delay_s > 0:
