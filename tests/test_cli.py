@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hydra.errors import HydraException, MissingConfigException
 from omegaconf.errors import OmegaConfBaseException
@@ -108,3 +109,19 @@ def test_results_json_is_replaced_whole(tmp_path: Path) -> None:
     results = json.loads((tmp_path / "results.json").read_text())
     _check_schema(results)
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_the_derivative_cut_off_rises_where_coulomb_friction_is_fitted() -> None:
+    """A reversal steps the friction torque by 2 Fc; a 5 Hz low-pass spreads the acceleration's step over 0.2 s
+    where the regressor's Fc sign(dq) has none of it (SO-ARM100 Fc2, Fc3: z +1.7 to +2.0 over seeds 0-5, then
+    -0.3 and +0.1 at 15 Hz). A cut-off the config sets is kept as it is."""
+    from excitation.fourier import FourierDesign
+    from harness.run import COULOMB_MIN_CUTOFF_HZ, _derivative_options
+
+    design = FourierDesign(0.1, np.zeros((2, 5)), np.zeros((2, 5)), np.zeros(2))
+    plain = compose_config(["system=two_link"])
+    dry = compose_config(["system=two_link", "system.effects=[armature,coulomb_friction]"])
+    fixed = compose_config(["system=two_link", "system.effects=[coulomb_friction]", "identify.cutoff_hz=7"])
+    assert _derivative_options(plain, design)["cutoff_hz"] == 5.0
+    assert _derivative_options(dry, design)["cutoff_hz"] == COULOMB_MIN_CUTOFF_HZ == 15.0
+    assert _derivative_options(fixed, design)["cutoff_hz"] == 7.0

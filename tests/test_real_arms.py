@@ -75,6 +75,10 @@ def test_shared_arms_pass_sysid_run_with_nothing_else(model: Path, tmp_path: Pat
     results = _run(model, tmp_path)
     _check(results)
     assert results["system"] == model.stem
+    # an arm with dry friction is differentiated at >= 15 Hz (the SO-ARM100's Fc at 5 Hz: z +1.7 to +2 on average)
+    dry = "coulomb_friction" in results["config"]["system"]["effects"]
+    assert results["derivatives"]["method"] == "butterworth"
+    assert (results["derivatives"]["cutoff_hz"] >= 15.0) == dry, (results["derivatives"], dry)
     assert results["excitation"]["poorly_excited"]["directions"] == 0  # the optimised design moves every one
 
 
