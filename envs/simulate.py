@@ -303,7 +303,7 @@ class _StepTerms:
         self.semi_implicit = integrator != int(mujoco.mjtIntegrator.mjINT_RK4)
         self.coriolis_implicit = integrator == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
         self.gains = _velocity_gains(plant) if actuator_implicit else np.zeros(len(plant.actuation.actuators))
-        half = 0.5 * plant.damping if self.semi_implicit else np.zeros(plant.nv)
+        half = 0.5 * plant.damping
         self.damping = -half if joint_implicit else half  # times dv: d (v + dv / 2 - v_used)
         self.joints = plant.actuation.joints
         self.any_gain = bool(np.any(self.gains))  # only then may a clamp change the correction
@@ -320,9 +320,8 @@ class _StepTerms:
         self, m: mujoco.MjModel, q: np.ndarray, v: np.ndarray, dv: np.ndarray, clamped: np.ndarray | None
     ) -> np.ndarray:
         """(nv,) what to add to the step's qfrc_actuator, for the step from (q, v) that changed v by dv, with
-        `clamped` (nu,) the actuators at their force range, or None where none can be (`any_gain` False)."""
-        if not self.semi_implicit:
-            return np.zeros_like(dv)
+        `clamped` (nu,) the actuators at their force range, or None where none can be (`any_gain` False).
+        Semi-implicit integrators only (`semi_implicit`): RK4's data need none."""
         gains = self._joint_gains
         if clamped is not None and np.any(clamped):
             gains = np.bincount(self.joints, np.where(clamped, 0.0, self.gains), minlength=len(dv))

@@ -144,10 +144,8 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
         s_hi = lo * 0.995  # margin for torque peaks between the grid's points
     motion = float(np.max(np.maximum(up, down)) * s_hi)
     if motion < min_motion_rad:
-        raise InfeasibleExcitationError(
-            f"the limits allow at most {motion:.3g} rad of motion (< {min_motion_rad} rad): binding constraint "
-            f"{limits.binding({binding: 1.0}, dev, dq1)}; relax it or lower the base frequency",
-            bound=binding,
+        raise limits.infeasible(
+            f"the limits allow at most {motion:.3g} rad of motion (< {min_motion_rad} rad)", {binding: 1.0}
         )
     return shape.scaled(s_hi)
 
@@ -206,10 +204,8 @@ def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, per
         if feasible.size == 0:
             if lo > 0:
                 break
-            raise InfeasibleExcitationError(
-                f"no torque amplitude down to {scales[0]:.3g} x the shape keeps the limits: binding constraint "
-                f"{limits.binding(last_ratios, q[-1], dq[-1])}",
-                bound=limits.binding_key(last_ratios),
+            raise limits.infeasible(
+                f"no torque amplitude down to {scales[0]:.3g} x the shape keeps the limits", last_ratios
             )
         best = int(feasible.max())
         lo = float(scales[best])

@@ -9,6 +9,7 @@ import numpy as np
 
 from dynamics.actuators import two_sided
 from dynamics.clearance import Clearance, clearance_for
+from dynamics.errors import InfeasibleExcitationError
 from dynamics.plant import Plant
 
 __all__ = ["Limits", "limits_for"]
@@ -78,8 +79,8 @@ class Limits:
         """The kind of the most used bound (`q`, `dq`, `ddq`, `tau` or `clearance`)."""
         return max(ratios, key=lambda k: ratios[k])
 
-    def binding(self, ratios: dict[str, float], q: np.ndarray, dq: np.ndarray) -> str:
-        """A readable name of the most used bound, e.g. `dq[elbow] <= 8 rad/s`."""
+    def binding(self, ratios: dict[str, float]) -> str:
+        """A readable name of the most used bound, e.g. `dq (bound shoulder 8, elbow 8 rad/s)`."""
         key = self.binding_key(ratios)
         if key == "clearance" and self.clearance is not None:
             return f"clearance (at least {self.clearance.clearance_m:.3g} m between links and to the floor)"
@@ -87,6 +88,12 @@ class Limits:
         bound = {"q": self.q_max, "dq": self.dq_max, "ddq": self.ddq_max, "tau": self.tau_max}[key]
         per_joint = ", ".join(f"{j} {b:.4g}" for j, b in zip(self.joint_names, bound, strict=True))
         return f"{key} (bound {per_joint} {units[key]})"
+
+    def infeasible(self, what: str, ratios: dict[str, float], then: str = "") -> InfeasibleExcitationError:
+        """The error for `what` failed, naming the most used bound of `ratios` (and carrying its kind)."""
+        return InfeasibleExcitationError(
+            f"{what}: binding constraint {self.binding(ratios)}{then}", bound=self.binding_key(ratios)
+        )
 
     def to_dict(self) -> dict[str, list[float]]:
         def clean(a: np.ndarray) -> list[float]:

@@ -488,12 +488,7 @@ def _shrink_into_limits(plant: Plant, design: FourierDesign, limits: Limits, t: 
         return design
     rest, ratios = worst(0.0)
     if rest > 1.0:
-        q = np.broadcast_to(design.q0, (1, plant.nv))
-        raise InfeasibleExcitationError(
-            f"the optimised offsets q0 = {design.q0} break a limit at rest: binding constraint "
-            f"{limits.binding(ratios, q, np.zeros_like(q))}",
-            bound=limits.binding_key(ratios),
-        )
+        raise limits.infeasible(f"the optimised offsets q0 = {design.q0} break a limit at rest", ratios)
     lo, hi = 0.0, 1.0
     for _ in range(20):
         mid = 0.5 * (lo + hi)

@@ -14,7 +14,7 @@ import numpy as np
 from mujoco import rollout
 
 from dynamics.base import BaseParameters
-from dynamics.errors import InfeasibleExcitationError, RankDeficientError
+from dynamics.errors import RankDeficientError
 from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from excitation.criteria import conditioning
@@ -162,10 +162,11 @@ class TorqueSearch:
         if not ok.any():
             worst = ratios[int(np.argmin(viol))]
             scaled = "scaled to the limits" if self.fill else f"down to {fractions[-1]:.3g} x the torque bound"
-            raise InfeasibleExcitationError(
-                f"no drive torque {scaled} keeps the simulated motion within the limits: binding constraint "
-                f"{self._binding(worst)} (worst use of each bound: { ({k: round(v, 3) for k, v in worst.items()}) })",
-                bound=self.limits.binding_key(worst),
+            uses = {k: round(v, 3) for k, v in worst.items()}
+            raise self.limits.infeasible(
+                f"no drive torque {scaled} keeps the simulated motion within the limits",
+                worst,
+                f" (worst use of each bound: {uses})",
             )
         best = int(np.argmin(np.where(ok, values, np.inf)))
         per_start = np.where(ok, conds, np.inf).reshape(len(shapes), len(fractions)).min(axis=1)
@@ -215,16 +216,12 @@ class TorqueSearch:
         _, _, viol, ratios = self.score(cands, limit_stride=1, bound=1.0)
         ok = np.flatnonzero(viol == 0)
         if ok.size == 0:
-            raise InfeasibleExcitationError(
+            raise self.limits.infeasible(
                 f"the optimised drive torque breaks a limit on the dense grid even at {fractions[-1]:.2f} x its "
-                f"amplitude: binding constraint {self._binding(ratios[-1])}",
-                bound=self.limits.binding_key(ratios[-1]),
+                "amplitude",
+                ratios[-1],
             )
         return cands[int(ok[0])]
-
-    def _binding(self, ratios: dict[str, float]) -> str:
-        empty = np.zeros((0, self.plant.nv))
-        return self.limits.binding(ratios, empty, empty)
 
     def check(self, design: FourierDesign) -> tuple[dict[str, float], np.ndarray]:
         """Ratios on every physics step and the stacked base regressor of the design's rollout."""

@@ -104,10 +104,10 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
     if not torque_driven:
         err = np.abs(q - design.evaluate(data.time[rows])[0]).max(axis=0)
         out["tracking_error_max"] = dict(zip(limits.joint_names, err.tolist(), strict=True))
-    key = max(ratios, key=lambda k: ratios[k])
+    key = limits.binding_key(ratios)
     out["holds"] = bool(ratios[key] <= 1.0 + SIMULATED_MARGIN)
     if key == "clearance":
-        out["worst"] = f"{limits.binding(ratios, q, dq)} at {ratios[key]:.3g} x its bound"
+        out["worst"] = f"{limits.binding(ratios)} at {ratios[key]:.3g} x its bound"
     else:
         per_joint = limits.joint_ratios(q, dq, ddq, tau)[key]
         j = int(np.argmax(per_joint))

@@ -173,9 +173,10 @@ def design_from_config(
     except InfeasibleExcitationError as err:
         if err.bound not in LIMIT_SETTINGS:
             raise
-        slower = "" if "base frequency" in str(err) else "; a lower system.base_freq_hz asks less speed of the motion"
         raise InfeasibleExcitationError(
-            f"{err}; that bound comes from {LIMIT_SETTINGS[err.bound]}{slower}", bound=err.bound
+            f"{err}; that bound comes from {LIMIT_SETTINGS[err.bound]}; relax it, or lower system.base_freq_hz "
+            "(the same motion, slower)",
+            bound=err.bound,
         ) from err
 
 

@@ -248,8 +248,7 @@ def _filtered_mismatch(plant: Plant, data) -> np.ndarray:  # type: ignore[no-unt
     clean = dataclasses.replace(data, q=data.meta["q_true"], tau=data.meta["tau_applied"])
     states = derive_states(clean, "butterworth", cutoff_hz=10.0)
     sos = signal.butter(4, 10.0, fs=1.0 / data.dt, output="sos")
-    lead = data.tau_lead_s / data.dt  # the states are moved to the torque's instant; the torque stays
-    assert lead >= 0
+    # derive_states moves the states to the torque's instant (`tau_lead_s`); the torque stays
     tau = signal.sosfiltfilt(sos, data.meta["tau_applied"], axis=0)
     rows = np.flatnonzero(states.valid)[100:-100]  # and 0.2 s more at each end, clear of the filters' edges
     error = inverse_dynamics(plant, states.q[rows], states.dq[rows], states.ddq[rows]) - tau[rows]
@@ -292,7 +291,7 @@ def test_the_data_are_those_of_the_continuous_robot_at_the_sampled_positions(
     assert np.abs(exact).max() < 1e-9
     scale = np.sqrt(np.mean(data.meta["tau_applied"] ** 2, axis=0))
     # what is left is the filter's own (a zero-phase low-pass of a nonlinear torque): 3e-4 of the torque RMS
-    # on j0 under every integrator. Before: 3.7e-4 on the implicit servos' wrist, 1.8e-3 to 6.9e-3 with motors
+    # on j0 under every integrator. Before: 3.7e-4 on the implicit servos' wrist, 1.5e-3 to 6.9e-3 with motors
     relative = _filtered_mismatch(plant, data) / scale
     assert np.all(relative < 1.2e-3), relative
     if integrator.startswith("implicit"):
