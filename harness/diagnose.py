@@ -2,8 +2,12 @@
 
 `run(cfg)` reads the data (`envs.measured`), splits it (by file, or a contiguous time block of one file),
 runs `identify.diagnose.diagnose` and writes `diagnosis.json`, `diagnosis.rrd` and `<system>_calibrated.xml`
-into the Hydra run directory (or `cfg.output_dir` outside Hydra). Nothing is written until the analysis has
-finished, and a failure while writing removes what was written: a run directory holds all three or none.
+into the Hydra run directory (or `cfg.output_dir` outside Hydra). With `diagnose.final_fit` (the default) the
+diagnosis is run once more on every record, the validation ones included, and writes
+`<system>_calibrated_all.xml`: the model for new data of the robot (a fit on more files of a session predicts a
+file it never saw better: `bench/diagnose.md`, "More files"); its own figures are in-sample, so the held-out gain
+reported stays the training fit's. Nothing is written until the analysis has finished, and a failure while
+writing removes what was written: a run directory holds all of its outputs or none.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ import glob
 import re
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
@@ -168,7 +172,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
     plant = load_plant(cfg.system.mjcf)
     cfg = with_model_defaults(cfg, plant)
-    outputs = ("diagnosis.rrd", f"{plant.name}_calibrated.xml", "diagnosis.json")
+    outputs = ("diagnosis.rrd", f"{plant.name}_calibrated.xml", f"{plant.name}_calibrated_all.xml", "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
         return _run(cfg, plant, folder)
 
@@ -221,24 +225,31 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     )
     if "rigid_body" in opts.effects:
         _check_training_excitation(plant, split.train, tuple(cfg.system.effects), derivatives, derivative_options)
-    result = diagnose(
+    fit = partial(
+        diagnose,
         plant,
-        split.train,
-        split.validation,
-        rng=np.random.default_rng(int(cfg.seed)),
         effects=tuple(opts.effects),
         derivatives=derivatives,
         derivative_options=derivative_options,
         anomalies=anomalies,
         selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
         window_s=float(opts.window_s),
-        references=references,
         band_hz=_band_hz(cfg),
         record_offsets=record_offsets(cfg),
         check_torque_signs=bool(opts.get("check_torque_signs", True)),
     )
+
+    def run_diagnosis(train: Sequence[Dataset], **kwargs: Any) -> Diagnosis:  # each fit from the same seed
+        return fit(train, split.validation, rng=np.random.default_rng(int(cfg.seed)), **kwargs)
+
+    result = run_diagnosis(split.train, references=references)
     mjcf_name = f"{plant.name}_calibrated.xml"
     payload = result.to_dict(mjcf_name=mjcf_name)
+    final: Diagnosis | None = None
+    if bool(opts.get("final_fit", True)):
+        stage(f"fitting the same diagnosis on every record ({sum(d.n_samples for d in datasets)} rows)")
+        final = run_diagnosis(datasets)
+        payload["final_fit"] = _final_fit_entry(final, f"{plant.name}_calibrated_all.xml", datasets)
     payload["seed"] = int(cfg.seed)
     payload["units"] = _units(plant)
     payload["split"] = split.describe()
@@ -252,7 +263,9 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     stage("writing the outputs")
     folder.retire()
     dataset = f"{cfg.data.get('name', 'csv')}: {', '.join(p.name for p in paths)}"
-    _write_outputs(out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)), dataset=dataset)
+    _write_outputs(
+        out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)), dataset=dataset, final=final
+    )
     stage("done")
     print(_summary(payload))
     print(f"outputs in {out}")
@@ -372,8 +385,10 @@ def _write_outputs(
     *,
     record: bool,
     dataset: str = "",
+    final: Diagnosis | None = None,
 ) -> None:
-    """The recording, the calibrated MJCF, then diagnosis.json (its presence means a finished run)."""
+    """The recording, the calibrated MJCF (and `final`'s, fitted on every record), then diagnosis.json (its
+    presence means a finished run)."""
     written: list[Path] = []
     steps: list[tuple[Path, Callable[[Path], None]]] = []
     if record:
@@ -388,6 +403,9 @@ def _write_outputs(
             )
         )
     steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
+    if final is not None:
+        name = payload["final_fit"]["mjcf"]
+        steps.append((out / name, lambda p: atomic_write(p, lambda f: f.write(final.calibrated_xml))))
     steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
     try:
         for path, write in steps:
@@ -397,6 +415,20 @@ def _write_outputs(
         for path in written:
             path.unlink(missing_ok=True)
         raise
+
+
+def _final_fit_entry(final: Diagnosis, mjcf_name: str, datasets: Sequence[Dataset]) -> dict[str, Any]:
+    """diagnosis.json's `final_fit`: the diagnosis run again on every record (the validation ones included)."""
+    return {
+        "mjcf": mjcf_name,
+        "records": [d.source for d in datasets],
+        "findings": [{"name": f.name, "value": f.value, "std": f.std, "unit": f.unit} for f in final.findings],
+        "note": (
+            "the same diagnosis fitted on every record, the validation ones included: the model for new data of "
+            "this robot. Its figures would be in-sample, so none is reported; the gain on data the fit never saw "
+            "is the training fit's (models.calibrated)"
+        ),
+    }
 
 
 def _units(plant: Plant) -> dict[str, dict[str, str]]:
@@ -444,6 +476,10 @@ def _summary(payload: dict[str, Any]) -> str:
         alts = "".join(f" or {c['effect']} {c['target']}".rstrip() for c in f.get("confounded_with", []))
         held = f" ({', '.join(f['held_nominal'])} nominal)" if f.get("held_nominal") else ""
         lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {std:.2g} {f['unit']}{bound}{alts}{held}")
+    if "final_fit" in payload:
+        ff = payload["final_fit"]
+        names = ", ".join(f["name"] for f in ff["findings"]) or "none"
+        lines.append(f"  fitted on every record ({len(ff['records'])}): {ff['mjcf']}, the model for new data ({names})")
     for d in payload.get("info", {}).get("outside_training", []):
         share = max(d["share_outside_by_angle"], d["share_outside_by_speed"])
         lines.append(

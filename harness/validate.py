@@ -300,6 +300,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         "diagnose.record_offsets",
         "data.record_offsets",
         "diagnose.check_torque_signs",
+        "diagnose.final_fit",
     )
     for key in keys:
         if OmegaConf.select(cfg, key) is not None:

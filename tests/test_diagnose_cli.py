@@ -1,5 +1,5 @@
-"""`sysid-diagnose` through its plain `run(cfg)`: the composed config writes diagnosis.json, diagnosis.rrd
-and <system>_calibrated.xml, and a failure leaves nothing half-written."""
+"""`sysid-diagnose` through its plain `run(cfg)`: the composed config writes diagnosis.json, diagnosis.rrd,
+<system>_calibrated.xml and <system>_calibrated_all.xml, and a failure leaves nothing half-written."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from envs.effects import HiddenEffect
 from harness.validate import ConfigError
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
-OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml")
+OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml", "pendulum_calibrated_all.xml")
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +42,7 @@ def _config(paths: list[Path], out: Path, *extra: str):  # type: ignore[no-untyp
     )
 
 
-def test_diagnose_writes_the_three_files(csv_files: list[Path], tmp_path: Path) -> None:
+def test_diagnose_writes_its_four_files(csv_files: list[Path], tmp_path: Path) -> None:
     result = cli.run(_config(csv_files, tmp_path))
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(OUTPUTS)
     payload = json.loads((tmp_path / "diagnosis.json").read_text())
@@ -65,6 +65,28 @@ def test_diagnose_writes_the_three_files(csv_files: list[Path], tmp_path: Path) 
     assert "/findings" in rows
     assert rows[f"{root}/robot/measured/pendulum"] > 10  # the measured motion replayed in 3D
     assert rrd_has_blueprint(tmp_path / "diagnosis.rrd")
+
+
+def test_the_final_fit_uses_every_record_and_can_be_left_out(csv_files: list[Path], tmp_path: Path) -> None:
+    """`<system>_calibrated_all.xml` is the diagnosis run again on the training and the validation file: its
+    friction std is that of twice the data (a copy of the training fit would keep the training std), and
+    `diagnose.final_fit=false` writes none, also removing one an earlier run in that folder left."""
+    payload = cli.run(_config(csv_files, tmp_path, "diagnose.recording=false"))
+    final = payload["final_fit"]
+    assert final["mjcf"] == "pendulum_calibrated_all.xml"
+    assert final["records"] == [str(p) for p in csv_files]
+    assert final["findings"][0]["name"].startswith("viscous_friction swing")
+    trained, every = payload["findings"][0], final["findings"][0]
+    assert every["value"] == pytest.approx(0.01, rel=0.05)
+    assert every["std"] < 0.85 * trained["std"]  # two records of equal length: 1/sqrt(2) of the std
+    assert load_plant(tmp_path / "pendulum_calibrated_all.xml").damping[0] == pytest.approx(every["value"])
+    again = cli.run(
+        _config(csv_files, tmp_path, "diagnose.recording=false", "diagnose.final_fit=false", "overwrite=true")
+    )
+    assert "final_fit" not in again
+    assert not (tmp_path / "pendulum_calibrated_all.xml").exists()
+    with pytest.raises(ConfigError, match=r"diagnose\.final_fit"):
+        cli.run(_config(csv_files, tmp_path / "bad", "diagnose.final_fit=maybe"))
 
 
 def test_single_file_is_split_by_time_block(csv_files: list[Path], tmp_path: Path) -> None:
