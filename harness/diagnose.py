@@ -159,6 +159,11 @@ def record_offsets(cfg: DictConfig) -> bool:
     return bool(flag) if flag is not None else False
 
 
+def _mjcf_names(plant: Plant) -> tuple[str, str]:
+    """The calibrated MJCFs' file names: fitted on the training records, and on every record (`final_fit`)."""
+    return f"{plant.name}_calibrated.xml", f"{plant.name}_calibrated_all.xml"
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content.
 
@@ -172,7 +177,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
     plant = load_plant(cfg.system.mjcf)
     cfg = with_model_defaults(cfg, plant)
-    outputs = ("diagnosis.rrd", f"{plant.name}_calibrated.xml", f"{plant.name}_calibrated_all.xml", "diagnosis.json")
+    outputs = ("diagnosis.rrd", *_mjcf_names(plant), "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
         return _run(cfg, plant, folder)
 
@@ -243,13 +248,13 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         return fit(train, split.validation, rng=np.random.default_rng(int(cfg.seed)), **kwargs)
 
     result = run_diagnosis(split.train, references=references)
-    mjcf_name = f"{plant.name}_calibrated.xml"
+    mjcf_name, final_name = _mjcf_names(plant)
     payload = result.to_dict(mjcf_name=mjcf_name)
     final: Diagnosis | None = None
     if bool(opts.get("final_fit", True)):
         stage(f"fitting the same diagnosis on every record ({sum(d.n_samples for d in datasets)} rows)")
         final = run_diagnosis(datasets)
-        payload["final_fit"] = _final_fit_entry(final, f"{plant.name}_calibrated_all.xml", datasets)
+        payload["final_fit"] = _final_fit_entry(final, final_name, datasets)
     payload["seed"] = int(cfg.seed)
     payload["units"] = _units(plant)
     payload["split"] = split.describe()
@@ -404,8 +409,7 @@ def _write_outputs(
         )
     steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
     if final is not None:
-        name = payload["final_fit"]["mjcf"]
-        steps.append((out / name, lambda p: atomic_write(p, lambda f: f.write(final.calibrated_xml))))
+        steps.append((out / _mjcf_names(plant)[1], lambda p: atomic_write(p, lambda f: f.write(final.calibrated_xml))))
     steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
     try:
         for path, write in steps:
