@@ -164,7 +164,12 @@ def load_plant(system: str | Path) -> Plant:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
         raise ModelError(f"{source}: MuJoCo cannot load it: {err}") from err
-    plant = plant_from_model(path, mj_model)
+    try:
+        plant = plant_from_model(path, mj_model)
+    except ModelError as err:  # a URDF's errors name the URDF, not the MJCF converted from it in a cache folder
+        if source == path:
+            raise
+        raise ModelError(str(err).replace(str(path), str(source))) from None
     return dataclasses.replace(plant, name=source.stem, source=source) if source != path else plant
 
 
@@ -204,6 +209,26 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         raise ModelError(f"{path}: gravity compensation (gravcomp) on bodies {bodies} is not supported")
     if m.opt.density != 0 or m.opt.viscosity != 0:
         raise ModelError(f"{path}: fluid forces (option density/viscosity) are not supported")
+    spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
+    plastic = [_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt) if m.jnt_springyield[j] > 0]
+    if plastic and spring_on:  # the spring's rest position follows the joint's history: no fixed springref
+        raise ModelError(
+            f"{path}: joint(s) {plastic} have a springyield (a plastic spring whose rest position moves with the "
+            "joint's history); the harness models a spring with a fixed springref: remove springyield"
+        )
+    if m.nu and m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_ACTUATION):
+        raise ModelError(
+            f'{path}: actuation is disabled (<flag actuation="disable"/>): no actuator drives a joint, so the '
+            "joints could only hang; enable it"
+        )
+    off = [a for a in range(m.nu) if 0 <= m.actuator_group[a] < 31 and m.opt.disableactuator >> m.actuator_group[a] & 1]
+    if off:
+        acts = [_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in off]
+        groups = sorted({int(m.actuator_group[a]) for a in off})
+        raise ModelError(
+            f"{path}: actuator(s) {acts} are in disabled group(s) {groups} (<option actuatorgroupdisable>): "
+            "MuJoCo applies none of their force; enable the group or remove the actuators"
+        )
     names = {_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)}
     clash = sorted(n for n in names if n.startswith("cmd_") and n.removeprefix("cmd_") in names)
     if clash:  # the data format's columns tau_<joint> and tau_cmd_<joint> would be one

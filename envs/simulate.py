@@ -402,6 +402,36 @@ def _pressing(d: mujoco.MjData, k: int, touching: dict[tuple[int, int], list[int
         seen[0] += 1
 
 
+def _at_limit(d: mujoco.MjData, k: int, out: np.ndarray) -> None:
+    """Row k of `out` (n, nv): the force of each joint's range limit in d (after a forward pass)."""
+    rows = np.flatnonzero(d.efc_type[: d.nefc] == int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))
+    for r in rows:
+        out[k, d.efc_id[r]] += d.efc_force[r]
+
+
+# a joint's range-limit force counts as pressing the stop above this share of the joint's RMS applied torque
+LIMIT_SHARE = 1e-3
+
+
+def _limit_report(plant: Plant, t: np.ndarray, force: np.ndarray, applied: np.ndarray) -> list[dict]:
+    """One entry per joint whose range limit pushed back (a force above `LIMIT_SHARE` of its RMS applied
+    torque): the joint, the samples, the first time [s] and the largest force, most samples first."""
+    scale = np.sqrt(np.mean(applied**2, axis=0)) + 1e-9
+    out = []
+    for j in range(force.shape[1]):
+        rows = np.flatnonzero(np.abs(force[:, j]) > LIMIT_SHARE * scale[j])
+        if rows.size:
+            out.append(
+                {
+                    "joint": plant.joint_names[j],
+                    "samples": int(rows.size),
+                    "first_t_s": float(t[rows[0]]),
+                    "max_force": float(np.abs(force[:, j]).max()),
+                }
+            )
+    return sorted(out, key=lambda e: -e["samples"])
+
+
 def _contact_report(m: mujoco.MjModel, t: np.ndarray, touching: dict[tuple[int, int], list[int]]) -> list[dict]:
     """One entry per geom pair that pressed: both geoms (and their bodies) by name, samples, first time [s]."""
 
@@ -447,6 +477,8 @@ def _run(
     start = np.empty(mujoco.mj_stateSize(m, kind))
     refined: list[int] = []
     touching: dict[tuple[int, int], list[int]] = {}  # geom pair -> [samples with a contact force, first sample]
+    limited = bool(m.jnt_limited.any())
+    at_limit = np.zeros((n, nv))  # each joint's range-limit force [N m or N] (hinges and slides: joint j is dof j)
     d.qpos[:], d.qvel[:] = q0, dq0
     for k, fine in enumerate(_setpoints(targets, t, m.opt.timestep, substeps)):
         state = d.qpos.copy(), d.qvel.copy()
@@ -458,6 +490,8 @@ def _run(
         constraint[k] = d.qfrc_constraint
         if d.ncon:
             _pressing(d, k, touching)
+        if limited:
+            _at_limit(d, k, at_limit)
         # MuJoCo drops a clamped actuator's velocity derivative from its step
         at_range = _at_force_range(m, d) if terms.any_gain else None
         if clamp is not None:
@@ -504,5 +538,6 @@ def _run(
             # joint limits, contacts and frictionloss act through constraints: the largest such torque [N m]
             "constraint_torque_max": np.abs(constraint).max(axis=0).tolist(),
             "contacts": _contact_report(m, t, touching),
+            "limits": _limit_report(plant, t, at_limit, applied),
         },
     )

@@ -9,7 +9,7 @@ import numpy as np
 
 from dynamics.actuators import two_sided
 from dynamics.clearance import Clearance, clearance_for
-from dynamics.errors import InfeasibleExcitationError
+from dynamics.errors import InfeasibleExcitationError, ModelError
 from dynamics.plant import Plant
 
 __all__ = ["Limits", "limits_for"]
@@ -117,7 +117,8 @@ def limits_for(
     """Limits from the MJCF (range, actuator torque, a servo's ctrlrange) and the config (speed, acceleration).
 
     A position servo's ctrlrange (over its gear) narrows its joint's range and a velocity servo's its speed:
-    the servo clamps its target there, so a design beyond it would not be the motion that runs.
+    the servo clamps its target there, so a design beyond it would not be the motion that runs. A joint limit's
+    `margin` narrows the range too: MuJoCo's limit force acts that far inside each end.
 
     Args:
         velocity: speed bound per joint (or one for all) [rad/s].
@@ -129,6 +130,16 @@ def limits_for(
     """
     n = plant.nv
     lo, hi = plant.q_range[:, 0].copy(), plant.q_range[:, 1].copy()
+    # a limit's margin: MuJoCo's limit force acts within that distance of the range's end (hinges and slides
+    # only, so joint j is dof j)
+    margin = np.where(np.isfinite(lo) & np.isfinite(hi), plant.mj_model.jnt_margin, 0.0)
+    if np.any(2 * margin >= hi - lo):
+        j = int(np.argmax(2 * margin - (hi - lo)))
+        raise ModelError(
+            f"{plant.path}: joint {plant.joint_names[j]!r}'s limit margin {margin[j]:.4g} leaves no free range "
+            f"inside [{lo[j]:.4g}, {hi[j]:.4g}]: MuJoCo's limit force acts within the margin of each end"
+        )
+    lo, hi = lo + margin, hi - margin
     dq_max = np.broadcast_to(np.asarray(velocity, dtype=float), (n,)).copy()
     for a in plant.actuation.actuators:  # a servo's ctrlrange clamps its target: the joint goes no further
         if a.ctrl_range is None or not a.is_servo:

@@ -514,19 +514,25 @@ def within_clearance(plant: Plant, limits: Limits, design: FourierDesign) -> Fou
 
 
 _OPEN_LENGTH_M = 0.1
+_OPEN_ROOM = 0.2  # share of each finite joint range an open pose keeps free at both ends
 
 
 def _open_pose(clearance: Clearance, limits: Limits, q: np.ndarray, *, steps: int = 40) -> np.ndarray:
     """A pose near `q` (nv,) with room around it: a projected ascent (into the ranges) of the soft minimum of
     every distance with a long smoothing length (`_OPEN_LENGTH_M`), so that every near pair and floor
     distance pushes, not only the nearest."""
+    # the pose keeps a share of each finite range on both sides: the motion about it needs room (a pose on a
+    # range's end, where a short slide's range puts a 0.2 step, leaves nothing to scale the design into)
+    width = np.where(np.isfinite(limits.q_max - limits.q_min), limits.q_max - limits.q_min, 0.0)
+    lo, hi = limits.q_min + _OPEN_ROOM * width, limits.q_max - _OPEN_ROOM * width
+    q = np.clip(q, lo, hi)
     d, g = clearance.smooth_distance(q[None], temperature_m=_OPEN_LENGTH_M)
     step = 0.2
     for _ in range(steps):
         norm = float(np.linalg.norm(g[0]))
         if norm == 0 or step < 1e-3:
             break
-        trial = np.clip(q + step * g[0] / norm, limits.q_min, limits.q_max)
+        trial = np.clip(q + step * g[0] / norm, lo, hi)
         d_t, g_t = clearance.smooth_distance(trial[None], temperature_m=_OPEN_LENGTH_M)
         if d_t[0] > d[0]:
             q, d, g = trial, d_t, g_t

@@ -43,6 +43,7 @@ from harness.validate import ConfigError, check_command_line, check_driven, vali
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
 from identify.derivatives import States, derive_states
 from identify.derived import DERIVED
+from identify.diagnose.diagnosis import SLIDING_FRACTION
 from identify.estimators import estimate
 from identify.excitation_check import MAX_COND, excitation_report
 from identify.problem import Estimate, Problem, build_problem
@@ -84,7 +85,8 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
     with the worst one named (`worst`).
 
     Raises:
-        ModelError: the motion pressed geoms together: contact forces are in the torque and no model has them.
+        ModelError: the motion pressed geoms together or a joint against its range limit: contact and limit
+            forces are in the torque and no model has them.
     """
     contacts = data.meta.get("contacts", [])
     if contacts:
@@ -95,6 +97,16 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
             "contact forces enter the torque and no model has them; keep them apart (a larger "
             "system.limits.clearance_m, which also covers world geoms only where they are the floor plane) or take "
             'them out of collision (contype="0" conaffinity="0")'
+        )
+    stops = data.meta.get("limits", [])
+    if stops:
+        s = stops[0]
+        raise ModelError(
+            f"the simulated motion presses joint {s['joint']!r} against its range limit in {s['samples']} of "
+            f"{data.n_samples} samples (first at t = {s['first_t_s']:.3f} s, up to {s['max_force']:.3g} N m or N; "
+            f"{len(stops)} joint(s) in all): the limit's force enters the torque and no model has it; keep the motion "
+            "further inside the range (a larger system.limits.range_margin, or a faster controller where the "
+            "tracking error reaches the stop) or widen the range (and any limit margin)"
         )
     assert data.ddq is not None  # a simulated dataset has the simulator's accelerations
     rows = data.time >= data.time[0] + min(SETTLE_S, 0.5 * float(data.time[-1] - data.time[0]))
@@ -149,14 +161,33 @@ def _identify(
     return estimate(cfg.estimator.name, problem, **options), problem  # type: ignore[arg-type]
 
 
+# fewest rows the sliding rule may keep before the run is refused (and the key named)
+MIN_SLIDING_ROWS = 50
+
+
 def _sliding(cfg: DictConfig, model: ParameterModel, states: States) -> States:
     """`states` trusting only the rows where every joint moves faster than `system.friction_min_speed` when the
     model has Coulomb columns: a sticking joint's friction is anywhere within +-Fc, not the column's Fc sign(dq),
-    and such rows would bias Fc low (and show up in the validation as misfit the sliding model cannot have)."""
+    and such rows would bias Fc low (and show up in the validation as misfit the sliding model cannot have).
+
+    A slide is held to `SLIDING_FRACTION` of its RMS speed instead where that is the smaller: its speed is in
+    m/s, and the bound would leave no row of a short slide moving at centimetres per second.
+
+    Raises:
+        ConfigError: under `MIN_SLIDING_ROWS` rows would be kept (none left a validation RMS of NaN).
+    """
     speed = cfg.system.get("friction_min_speed")
     if speed is None or "coulomb_friction" not in model.effects:
         return states
-    moving = np.all(np.abs(states.dq) > float(speed), axis=1)
+    rms = np.sqrt(np.mean(states.dq[states.valid] ** 2, axis=0))
+    bound = np.where(model.plant.hinge, float(speed), np.minimum(float(speed), SLIDING_FRACTION * rms))
+    moving = np.all(np.abs(states.dq) > bound, axis=1)
+    kept, trusted = int(np.sum(states.valid & moving)), int(np.sum(states.valid))
+    if kept < MIN_SLIDING_ROWS:
+        raise ConfigError(
+            f"system.friction_min_speed={speed}: only {kept} of {trusted} samples have every joint moving faster "
+            f"(per joint: {np.round(bound, 4).tolist()}); lower it, or null to keep every sample"
+        )
     return dataclasses.replace(states, valid=states.valid & moving)
 
 

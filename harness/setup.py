@@ -72,10 +72,38 @@ def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:
     print(f"system settings taken from the model {plant.source or plant.path} (set any to override it):")
     for key, value in assumed.items():
         print(f"  system.{key}={value}")
+    for line in model_limits(plant):
+        print(f"  {line}")
     out = cfg.copy()
     with open_dict(out):
         out.system = system
     return out
+
+
+def model_limits(plant: Plant) -> list[str]:
+    """What the model itself bounds (no config key: edit the model to change them), one line each: the joint
+    ranges (with a limit's margin, inside which MuJoCo's limit force acts) and the actuators' torque limits."""
+    margin = plant.mj_model.jnt_margin
+
+    def joint_range(j: int) -> str:
+        lo, hi = plant.q_range[j]
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            return f"{plant.joint_names[j]} unlimited"
+        unit = "rad" if plant.hinge[j] else "m"
+        extra = f" (margin {margin[j]:.4g})" if margin[j] else ""
+        return f"{plant.joint_names[j]} [{lo:.4g}, {hi:.4g}] {unit}{extra}"
+
+    def torque(j: int) -> str:
+        if not plant.actuated[j]:
+            return f"{plant.joint_names[j]} unactuated"
+        limit = float(plant.tau_limit[j])
+        value = f"{limit:.4g} {'N m' if plant.hinge[j] else 'N'}" if np.isfinite(limit) else "unlimited"
+        return f"{plant.joint_names[j]} {value}"
+
+    return [
+        "joint ranges (the model's): " + ", ".join(joint_range(j) for j in range(plant.nv)),
+        "torque limits (the model's): " + ", ".join(torque(j) for j in range(plant.nv)),
+    ]
 
 
 def limits_from_config(system: DictConfig, plant: Plant) -> Limits:

@@ -84,6 +84,47 @@ def test_unsupported_models_are_refused(tmp_path: Path, joint: str, message: str
         load_plant(path)
 
 
+_DRIVEN = (
+    '<mujoco>{option}<worldbody><body name="b"><joint name="j" axis="0 1 0" {joint}/>'
+    '<inertial pos="0 0 -0.1" mass="1" diaginertia="0.01 0.01 0.01"/></body></worldbody>'
+    '<actuator><motor name="m" joint="j" group="{group}"/></actuator></mujoco>'
+)
+
+
+@pytest.mark.parametrize(
+    ("option", "joint", "group", "message"),
+    [
+        ("", 'stiffness="2" springyield="0.3"', 0, r"joint\(s\) \['j'\] have a springyield"),
+        ('<option><flag actuation="disable"/></option>', "", 0, "actuation is disabled"),
+        ('<option actuatorgroupdisable="1"/>', "", 1, r"actuator\(s\) \['m'\] are in disabled group\(s\) \[1\]"),
+    ],
+)
+def test_what_the_dynamics_check_cannot_see_is_refused(
+    tmp_path: Path, option: str, joint: str, group: int, message: str
+) -> None:
+    """A plastic spring (its rest position follows the joint's history) and actuators MuJoCo does not apply
+    agree with Pinocchio at every single state, so the load-time check passes them: they are refused by name."""
+    path = tmp_path / "bad.xml"
+    path.write_text(_DRIVEN.format(option=option, joint=joint, group=group))
+    with pytest.raises(ModelError, match=message):
+        load_plant(path)
+    path.write_text(_DRIVEN.format(option="", joint='stiffness="2"', group=group))
+    assert load_plant(path).stiffness.tolist() == [2.0]  # the same model without them loads
+
+
+def test_a_urdfs_errors_name_the_urdf(tmp_path: Path) -> None:
+    """The URDF is converted to an MJCF in a cache folder; a refusal names the file the user gave."""
+    path = tmp_path / "floating.urdf"
+    path.write_text(
+        '<robot name="r"><link name="base"/><link name="arm"><inertial><mass value="1"/>'
+        '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+        '<joint name="float" type="floating"><parent link="base"/><child link="arm"/></joint></robot>'
+    )
+    with pytest.raises(ModelError, match=r"floating\.urdf: only hinge and slide joints") as err:
+        load_plant(path)
+    assert "sysid_urdf_" not in str(err.value)
+
+
 def test_hinge_tells_hinges_from_slides(tmp_path: Path) -> None:
     from dynamics.plant import plant_from_xml
 

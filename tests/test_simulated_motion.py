@@ -120,6 +120,35 @@ def test_a_motion_that_presses_geoms_together_is_refused_by_name(tmp_path: Path)
         simulated_motion(reference, limits, _track(plant, reference), torque_driven=False)  # type: ignore[arg-type]
 
 
+def test_a_motion_that_presses_a_joint_against_its_range_limit_is_refused_by_name(tmp_path: Path) -> None:
+    """A swing of 1.2 rad on a joint whose limit force acts from 0.5 rad on (range +-1.5, margin 1): the stop's
+    force would be fitted as inertia and gravity."""
+    xml = _ONE.format(name="stop", world="", actuator='<motor joint="j0" ctrlrange="-20 20"/>')
+    plant = plant_from_xml(xml.replace('range="-2 2"', 'range="-1.5 1.5" margin="1"'), "stop", tmp_path)
+    limits = limits_for(plant, velocity=20.0, acceleration=100.0, range_margin=0.0)
+    reference = _Swing(1.2)
+    data = _track(plant, reference)
+    stop = data.meta["limits"][0]
+    assert stop["joint"] == "j0" and stop["samples"] > 100 and stop["max_force"] > 0.1
+    with pytest.raises(ModelError, match=r"presses joint 'j0' against its range limit in \d+ of 1000 samples"):
+        simulated_motion(reference, limits, data, torque_driven=False)  # type: ignore[arg-type]
+    free = _track(plant, _Swing(0.3))  # inside the margin's free range: no limit force
+    assert free.meta["limits"] == []
+    simulated_motion(_Swing(0.3), limits, free, torque_driven=False)  # type: ignore[arg-type]
+
+
+def test_a_limit_margin_narrows_the_range_the_design_may_use(tmp_path: Path) -> None:
+    """MuJoCo's limit force acts within `margin` of each end: the design keeps to the range inside it (and the
+    range margin's share of that), and a margin that leaves nothing is refused by name."""
+    xml = _ONE.format(name="margin", world="", actuator='<motor joint="j0" ctrlrange="-20 20"/>')
+    plant = plant_from_xml(xml.replace('range="-2 2"', 'range="-2 2" margin="0.5"'), "margin", tmp_path)
+    limits = limits_for(plant, velocity=20.0, acceleration=100.0, range_margin=0.1)
+    assert limits.q_min[0] == pytest.approx(-1.5 + 0.3) and limits.q_max[0] == pytest.approx(1.5 - 0.3)
+    wide = plant_from_xml(xml.replace('range="-2 2"', 'range="-2 2" margin="2"'), "wide", tmp_path)
+    with pytest.raises(ModelError, match=r"joint 'j0'.s limit margin 2 leaves no free range inside \[-2, 2\]"):
+        limits_for(wide, velocity=20.0, acceleration=100.0)
+
+
 def _results(motion: dict) -> dict:
     """The parts of a run's results the summary table reads."""
     return {
