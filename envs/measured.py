@@ -53,6 +53,7 @@ _STARTUP_TOL = 0.25  # leading steps off the median by more than 25 % are the lo
 _STARTUP_MAX_FRACTION = 0.05  # ... as long as they are a few rows; otherwise the sampling is irregular
 _MAX_GAP_STEPS = 10.0  # a gap of more than 10 median steps is not interpolated across
 _GLITCH_MAX_RUN = 5  # a glitch is at most 5 consecutive samples off track
+_MAX_WRAP_TURNS = 2  # an encoder wrap-around is at most two whole turns between samples
 _GLITCH_MAX_FRACTION = 0.01  # more glitch samples than 1 % of the rows: the sensor is not trusted
 _SPIKE_WINDOW = 4 * _GLITCH_MAX_RUN + 1  # running median [samples] a torque spike is measured from (a run of
 # up to twice the longest glitch moves it not at all)
@@ -620,6 +621,13 @@ def _resolve_columns(
         if header.count(name) > 1:
             raise DataError(f"{src}: column '{name}' (for {key}) appears {header.count(name)} times in the header")
         out[key] = _Column(name, where[name], scale, offset)
+    by_column: dict[str, list[str]] = {}
+    for key, c in out.items():  # a joint's torque and its command may share a column (a log of commands only)
+        by_column.setdefault(c.name, []).append(key.replace("tau_cmd_", "tau_"))
+    for name, keys in by_column.items():
+        if len(set(keys)) > 1:
+            mapped = [k for k, c in out.items() if c.name == name]
+            raise DataError(f"{src}: column '{name}' is mapped to {', '.join(mapped)}: each needs its own column")
     used = {c.name for c in out.values()}
     ignored = [h for h in header if h not in used]
     if columns is None:
@@ -733,6 +741,12 @@ def _check_angle_units(
             ratio = _rate_ratio(t, q[:, j], dq[:, j])
             if ratio is not None and not 0.7 <= ratio <= 1.4:
                 ldq = labels[f"dq_{n}"]
+                if not np.isfinite(ratio):
+                    raise DataError(
+                        f"{src}: {ldq} stays near zero while {lq} moves (rows 0-{len(t) - 1}): a stuck velocity "
+                        "column; without it (dropped from the file or the column mapping) the velocity is derived "
+                        "from the angle"
+                    )
                 if abs(ratio * _DEGREE - 1) < 0.25:
                     why = f"{lq} looks like degrees (180/pi = 57.3); the harness expects radians"
                 elif abs(ratio / _DEGREE - 1) < 0.25:
@@ -877,7 +891,8 @@ def _fit_joint_ranges(
 def _rate_ratio(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float | None:
     """Median ratio of the angle's increments to the integral of the velocity over windows of ~0.05 s.
 
-    None when the joint moves too little for the ratio to mean anything.
+    None when the joint moves too little for the ratio to mean anything; inf when the angle moves and the
+    velocity's integral stays within a tenth of it (a velocity column stuck at zero).
     """
     h = float(np.median(np.diff(t)))
     w = int(min(max(3, round(0.05 / h)), len(t) // 4))
@@ -887,6 +902,9 @@ def _rate_ratio(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float | None:
     dx, di = x[w:] - x[:-w], integral[w:] - integral[:-w]
     big = np.abs(di) >= max(0.25 * np.abs(di).max(), 0.02)
     if big.sum() < 10:
+        moving = np.abs(dx) >= max(0.25 * np.abs(dx).max(), 0.02)
+        if moving.sum() >= 10 and np.all(np.abs(di[moving]) < 0.1 * np.abs(dx[moving])):
+            return float("inf")
         return None
     return float(np.median(dx[big] / di[big]))
 
@@ -975,7 +993,8 @@ def _repair_joint(
         r = float(np.nanmedian(near)) if np.isfinite(near).any() else 0.0
         jump = s[k] - r * dt[k]
         turns = round(jump / (2 * np.pi))
-        if turns and abs(jump - 2 * np.pi * turns) <= bound[k]:
+        # a wrap-around is a turn or two (a value 1e17 off is a multiple of 2 pi to within its rounding)
+        if 0 < abs(turns) <= _MAX_WRAP_TURNS and abs(jump - 2 * np.pi * turns) <= bound[k]:
             step_fix[k] = -2 * np.pi * turns
             wraps.append(k)
             i += 1

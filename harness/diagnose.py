@@ -66,14 +66,14 @@ def _output_dir(cfg: DictConfig) -> Path:
 
 def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceModel]:
     """The authors' identified models to compare with: `auto` (authors_identified/*.yml beside the first data
-    file, none if absent), None, or a list of yml paths."""
+    file, none if absent), None, a yml path or a list of them."""
     if spec is None:
         return {}
     if spec == "auto":
         folder = data_paths[0].parent / "authors_identified"
         files = sorted(folder.glob("*.yml")) if folder.is_dir() else []
     else:
-        files = [Path(p) for p in spec]
+        files = [Path(p) for p in _as_list(spec)]
     out: dict[str, ReferenceModel] = {}
     for f in files:
         p = load_author_model(f)
@@ -128,7 +128,8 @@ def data_paths(cfg: DictConfig) -> list[Path]:
 
 
 def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
-    """Refuse a filter frequency at or above the Nyquist frequency of the slowest file (known once read)."""
+    """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or a re-start window
+    shorter than `MIN_WINDOW_SAMPLES` of its samples (known once read)."""
     slowest = max(datasets, key=lambda d: d.dt)
     nyquist = 0.5 / slowest.dt
     key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
@@ -138,6 +139,16 @@ def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
                 f"{slowest.source} (sampled at {2 * nyquist:g} Hz)"
             )
+    window = float(cfg.diagnose.window_s)
+    if window < MIN_WINDOW_SAMPLES * slowest.dt:
+        raise ConfigError(
+            f"diagnose.window_s={window:g} s is shorter than {MIN_WINDOW_SAMPLES} samples of {slowest.source} "
+            f"({MIN_WINDOW_SAMPLES * slowest.dt:.3g} s at {1 / slowest.dt:g} Hz): a re-started simulation needs "
+            "some steps to show an error"
+        )
+
+
+MIN_WINDOW_SAMPLES = 5  # the shortest re-start window of the simulation error, in samples of the slowest file
 
 
 def _band_hz(cfg: DictConfig) -> float | None:
@@ -216,7 +227,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     split = split_train_validation(
         datasets,
         validation_fraction=float(cfg.data.get("validation_fraction", 0.3)),
-        validation=list(validation) if validation is not None else None,
+        validation=_as_list(validation) if validation is not None else None,
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
     references = reference_models(
@@ -452,7 +463,8 @@ def _findings_markdown(result: Diagnosis, units: dict[str, dict[str, str]]) -> s
         "|---|---|---:|---:|---|---|",
     ]
     for f in result.findings:
-        lines.append(f"| {f.name} | {f.target} | {f.value:.5g} | {f.std:.2g} | {f.unit} | {f.at_bound or ''} |")
+        std = f"{f.std:.2g}" if np.isfinite(f.std) else "-"  # none at a bound
+        lines.append(f"| {f.name} | {f.target} | {f.value:.5g} | {std} | {f.unit} | {f.at_bound or ''} |")
     lines += [
         "",
         "| model | joint | torque RMS | on the torques judged | simulation error |",
@@ -475,11 +487,12 @@ def _summary(payload: dict[str, Any]) -> str:
         lines.append(f"  anomaly: {a['kind']} {a['joint']} in {Path(a['source']).name}")
     for f in payload["findings"]:
         where = f.get("joint") or f.get("body") or ""
-        std = f["std"] if f["std"] is not None else float("nan")
-        bound = f" (at its {f['at_bound']} bound)" if f.get("at_bound") else ""
+        finite = f["std"] is not None and np.isfinite(f["std"])
+        std = f" +- {f['std']:.2g}" if finite else ""  # a value at its bound has none
+        bound = f" (at its {f['at_bound']} bound{'' if finite else ', no std'})" if f.get("at_bound") else ""
         alts = "".join(f" or {c['effect']} {c['target']}".rstrip() for c in f.get("confounded_with", []))
         held = f" ({', '.join(f['held_nominal'])} nominal)" if f.get("held_nominal") else ""
-        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g} +- {std:.2g} {f['unit']}{bound}{alts}{held}")
+        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g}{std} {f['unit']}{bound}{alts}{held}")
     if "final_fit" in payload:
         ff = payload["final_fit"]
         names = ", ".join(f["name"] for f in ff["findings"]) or "none"

@@ -270,6 +270,11 @@ def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
         check_system(cfg, plant)
 
 
+# derivative methods for measured records: `spectral` keeps an excitation's harmonics (it needs whole periods of a
+# known one) and `simulator` reads the simulator's own accelerations, which a log has not
+MEASURED_DERIVATIVES = ("butterworth", "given", "kalman")
+
+
 def validate_diagnose_config(cfg: DictConfig) -> None:
     """Check a `sysid-diagnose` config before any file is read.
 
@@ -287,10 +292,40 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         raise ConfigError(f"data.path must be a file path or a list of them, got {raw!r}")
     _number(cfg, "seed", integer=True, low=0)
     _flag(cfg, "overwrite")
+    columns = OmegaConf.select(cfg, "data.columns")
+    if columns is not None and not isinstance(columns, DictConfig):
+        raise ConfigError(
+            f"data.columns must map the harness's names to the file's columns (e.g. {{q_shoulder: pos1}}) or be "
+            f"null, got {columns!r}"
+        )
     _number(cfg, "diagnose.cutoff_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "diagnose.band_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "diagnose.window_s", low=0.0, low_open=True)
     _number(cfg, "diagnose.max_rows", integer=True, low=1000, optional=True)
+    _choice(cfg, "diagnose.derivatives", MEASURED_DERIVATIVES)
+    effects = _value(cfg, "diagnose.effects")
+    if not isinstance(effects, ListConfig) or not all(isinstance(e, str) for e in effects):
+        raise ConfigError(
+            f"diagnose.effects must be a list of effect names, e.g. diagnose.effects=[armature,viscous_friction], "
+            f"got {effects!r}"
+        )
+    refs = _value(cfg, "diagnose.references")
+    paths = isinstance(refs, ListConfig) and all(isinstance(r, str) for r in refs)
+    if not (refs is None or isinstance(refs, str) or paths):
+        raise ConfigError(f"diagnose.references must be auto, null, a yml path or a list of them, got {refs!r}")
+    selection = _value(cfg, "diagnose.selection")
+    if not isinstance(selection, DictConfig):
+        raise ConfigError(f"diagnose.selection must be a mapping of the selection's thresholds, got {selection!r}")
+    from identify.diagnose import SelectionOptions  # the core's own checks, named by their keys here
+
+    unknown = sorted(set(selection) - set(SelectionOptions.__dataclass_fields__))
+    if unknown:
+        valid = ", ".join(sorted(SelectionOptions.__dataclass_fields__))
+        raise ConfigError(f"diagnose.selection.{unknown[0]} is not a threshold of the selection; valid keys: {valid}")
+    try:
+        SelectionOptions(**OmegaConf.to_container(selection))  # type: ignore[arg-type]
+    except ValueError as err:
+        raise ConfigError(f"diagnose.selection.{err}") from None
     _number(cfg, "data.validation_fraction", low=0.0, low_open=True, high=0.9)
     _number(cfg, "data.min_samples", integer=True, low=2)
     _number(cfg, "data.max_speed", low=0.0, low_open=True, optional=True)

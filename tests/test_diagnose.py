@@ -310,6 +310,35 @@ def test_swapped_angle_columns_are_refused_by_name(tmp_path: Path) -> None:
         run_diagnosis(plant, swapped, validation)
 
 
+@pytest.mark.parametrize("turned", [[0], [0, 1]], ids=["shoulder", "both"])
+def test_an_angle_zero_half_a_turn_off_is_named_not_blamed_on_the_torque(turned: list[int], tmp_path: Path) -> None:
+    """Angles zeroed upright where the model's hang (pi added): gravity pulls the other way, and the torque's
+    sign check had called the torque flipped (negating it, as advised, gave a wrong calibrated MJCF)."""
+    plant, train, validation = simulate("two_link", [], 3, tmp_path)
+    q = train.q.copy()
+    q[:, turned] += np.pi
+    names = " and ".join(f"q_{plant.joint_names[j]}" for j in turned)
+    with pytest.raises(DataError, match=rf"the zero of {names} looks half a turn off the model's"):
+        run_diagnosis(plant, dataclasses.replace(train, q=q), validation)
+
+
+@pytest.mark.parametrize(
+    ("factor", "noise", "share"),
+    [(1e-3, 0.0, r"0\.001"), (0.0, 1e-9, r"[\d.]+e-\d+"), (1e3, 0.0, "1e\\+03")],
+    ids=["mN_m_read_as_N_m", "dead_sensor", "kN_m_read_as_N_m"],
+)
+def test_a_torque_column_far_off_the_nominal_size_is_refused(
+    factor: float, noise: float, share: str, tmp_path: Path
+) -> None:
+    """A shoulder torque scaled by 1e-3 or 1e3, or a dead sensor's noise: the diagnosis had named a torque gain
+    at its bound on the other joint. The DFKI logs span 0.083 to 1.78 of the nominal torque's variation."""
+    plant, train, validation = simulate("two_link", [], 3, tmp_path)
+    tau = train.tau.copy()
+    tau[:, 0] = factor * tau[:, 0] + noise * np.random.default_rng(0).standard_normal(len(tau))
+    with pytest.raises(DataError, match=rf"tau_shoulder varies {share} times as much as the torque the nominal model"):
+        run_diagnosis(plant, dataclasses.replace(train, tau=tau), validation)
+
+
 def test_a_joint_frozen_in_every_training_file_is_named_in_the_refusal(tmp_path: Path) -> None:
     """An elbow encoder that reads a constant: the refusal said only that Ia2 is not excited."""
     from harness.diagnose import _check_training_excitation

@@ -174,6 +174,40 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("diagnose.selection.min_z=nan", r"diagnose\.selection\.min_z must be a finite number, got nan"),
+        ("diagnose.selection.bic_margin=-1", r"diagnose\.selection\.bic_margin must be >= 0"),
+        ("diagnose.selection.min_independence=5", r"diagnose\.selection\.min_independence must lie in \[0, 1\]"),
+        ("diagnose.selection.max_findings=-1", r"diagnose\.selection\.max_findings must be an integer >= 1"),
+        ("diagnose.selection.folds=2.5", r"diagnose\.selection\.folds must be an integer in \[2, 50\], got 2\.5"),
+        ("diagnose.selection.folds=100000", r"diagnose\.selection\.folds must be an integer in \[2, 50\]"),
+        ("+diagnose.selection.min_zz=3", r"diagnose\.selection\.min_zz is not a threshold .* valid keys: .*min_z,"),
+        ("diagnose.effects=null", r"diagnose\.effects must be a list of effect names"),
+        ("diagnose.effects=armature", r"diagnose\.effects must be a list .* got 'armature'"),
+        ("diagnose.derivatives=spectral", r"unknown diagnose\.derivatives 'spectral'; valid choices: butterworth"),
+        ("diagnose.window_s=0.001", r"diagnose\.window_s=0\.001 s is shorter than 5 samples of .*train\.csv"),
+        ("data.columns=5", r"data\.columns must map the harness's names to the file's columns .* got 5"),
+    ],
+)
+def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(
+    csv_files: list[Path], tmp_path: Path, override: str, message: str
+) -> None:
+    """Each of these ran before: NaN thresholds changed the findings, a string was read letter by letter,
+    `spectral` (which needs whole periods of a known excitation) gave a confident false result, a window shorter
+    than a sample printed a NaN error, and folds=2.5 or effects=null raised a TypeError."""
+    with pytest.raises(ConfigError, match=message):
+        cli.run(_config(csv_files, tmp_path, override))
+    assert not any(tmp_path.iterdir())
+
+
+def test_one_validation_file_may_be_given_as_a_string(csv_files: list[Path], tmp_path: Path) -> None:
+    """It was read letter by letter ("validation file 'v' is not among the files read")."""
+    result = cli.run(_config(csv_files, tmp_path, f"data.validation={csv_files[0].name}", "diagnose.final_fit=false"))
+    assert [p["source"] for p in result["split"]["validation"]] == [str(csv_files[0])]
+
+
 def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
     """A pendulum barely swinging about its rest position cannot tell its inertia from its mass moments."""
     plant = load_plant("pendulum")
@@ -338,3 +372,13 @@ def test_a_slide_joints_torques_and_errors_are_reported_in_its_units(tmp_path: P
     }
     out = cli._summary(payload)
     assert "rail 0.5000 N, arm 0.0200 N m" in out and "simulation error: rail 0.0100 m" in out
+
+
+def test_a_value_at_its_bound_is_printed_without_a_std() -> None:
+    """It was printed as `0.7 +- nan 1 (at its lower bound)`."""
+    finding = {"effect": "torque_gain", "joint": "elbow", "value": 0.7, "std": None, "unit": "1"}
+    payload = {"system": "two_link", "verdict": "explained", "models": {}}
+    text = cli._summary({**payload, "findings": [{**finding, "at_bound": "lower"}]})
+    assert "torque_gain       elbow      0.7 1 (at its lower bound, no std)" in text and "nan" not in text
+    free = cli._summary({**payload, "findings": [{**finding, "std": 0.004}]})
+    assert "0.7 +- 0.004 1" in free

@@ -315,6 +315,35 @@ def test_wrap_around_is_refused_when_repair_is_off(tmp_path: Path, plant: Plant)
         read_measured(write(tmp_path / "wrap.csv", cols), plant, repair=False)
 
 
+@pytest.mark.parametrize("value", [1e17, -1e300])
+def test_a_huge_angle_is_a_glitch_not_a_wrap_around(tmp_path: Path, plant: Plant, value: float) -> None:
+    """1e17 rad is a whole number of turns to within its rounding: it had been "unwrapped", leaving the sample
+    3.4 rad off and the rigid-body refit 27 times the noise."""
+    cols = table()
+    clean = cols["q_shoulder"].copy()
+    cols["q_shoulder"][500] = value
+    data = read_measured(write(tmp_path / "huge.csv", cols), plant)
+    (report,) = data.meta["repairs"]
+    assert report.kind == "glitch" and report.rows == (500,)
+    np.testing.assert_allclose(data.q[:, 0], clean, atol=1e-4)
+
+
+def test_a_velocity_column_stuck_at_zero_is_refused(tmp_path: Path, plant: Plant) -> None:
+    cols = table()
+    cols["dq_elbow"] = np.zeros_like(cols["dq_elbow"])
+    with pytest.raises(DataError, match=r"column 'dq_elbow' stays near zero while column 'q_elbow' moves"):
+        read_measured(write(tmp_path / "stuck.csv", cols), plant)
+
+
+def test_one_file_column_mapped_to_two_names_is_refused(tmp_path: Path, plant: Plant) -> None:
+    path = write(tmp_path / "run.csv", table())
+    with pytest.raises(DataError, match=r"column 'tau_shoulder' is mapped to tau_elbow, tau_shoulder: each needs"):
+        read_measured(path, plant, columns={"tau_elbow": "tau_shoulder", "tau_shoulder": "tau_shoulder"})
+    cmd = table()  # a log of commands only: a joint's torque and its command may share a column
+    both = {"tau_cmd_shoulder": "tau_shoulder", "tau_cmd_elbow": "tau_elbow"}
+    read_measured(write(tmp_path / "cmd.csv", cmd), plant, columns=both)
+
+
 def test_glitches_are_interpolated_with_a_report(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     clean = cols["q_elbow"].copy()

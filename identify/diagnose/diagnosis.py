@@ -290,13 +290,18 @@ def _records(
 SIGN_CORRELATION = -0.5  # a measured torque this anti-correlated with the nominal model's ...
 SIGN_SIZE = -0.1  # ... and at least this large a share of it with the opposite sign has a flipped sign (C.1 143704's
 # shoulder, all but passive, carries 0.18 of the nominal torque)
+# the measured torque of a moving actuated joint varies at least / at most this many times as much as the nominal
+# model's (outside: a dead sensor, another unit, a time axis off by a factor). The DFKI logs span 0.083 (C.1
+# 144115's elbow, driven with zero torque) to 1.78
+TORQUE_SHARE = (0.04, 25.0)
 SWAP_CORRELATION = 0.5  # two torques each correlated this well with the other joint's nominal torque ...
 SWAP_MARGIN = 0.2  # ... and by this much better than with their own are swapped columns
 
 
 def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: np.ndarray | None = None) -> None:
     """Refuse a record whose torque column has the opposite sign of the torque the nominal model needs along
-    the motion, or two columns that follow each other's joint: a model error moves the torque by a share of
+    the motion, varies far less or more than it (`TORQUE_SHARE`: a dead sensor, another unit), or two columns
+    that follow each other's joint: a model error moves the torque by a share of
     its size, never turns it around or over to another joint, and a fit would turn the model instead (negative
     masses, a gain of -1).
 
@@ -336,12 +341,23 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
     _check_angle_columns(plant, data, signal, tau_band, [int(j) for j in np.flatnonzero(moving)], src)
     for j in joints:
         size = float(b[:, j] @ a[:, j]) / max(float(na[j]) ** 2, 1e-300)
+        share = float(nb[j]) / max(float(na[j]), 1e-300)
+        if not TORQUE_SHARE[0] <= share <= TORQUE_SHARE[1]:
+            raise DataError(
+                f"{src}: {column(j)} varies {share:.3g} times as much as the torque the nominal model needs at "
+                f"{names[j]} along the motion{band}: a dead or disconnected sensor, a torque in another unit "
+                "(a factor near 1000: mN m or kN m), time in another unit (the torque needed goes with its "
+                "square) or another joint's column; give a scale or the right column in the column mapping "
+                f"(data.columns.tau_{names[j]}), or set "
+                "diagnose.check_torque_signs=false if the nominal model is that far off"
+            )
         if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE:
             raise DataError(
                 f"{src}: {column(j)} runs against the torque the nominal model needs at {names[j]} along the motion "
                 f"(correlation {r[j, j]:.2f}{band}, {size:.2f} times its size): its sign looks flipped: negate its "
-                f"scale in the column mapping (data.columns.tau_{names[j]}), or set diagnose.check_torque_signs=false "
-                "if the motion really needs the opposite torque"
+                f"scale in the column mapping (data.columns.tau_{names[j]}); or, where the joint's angle counts the "
+                "other way round than the model's axis, negate the angle's and the velocity's scales instead; or "
+                "set diagnose.check_torque_signs=false if the motion really needs the opposite torque"
             )
 
 
@@ -360,8 +376,10 @@ def _file_column(data: Dataset, ours: str) -> str:
 def _check_angle_columns(
     plant: Plant, data: Dataset, signal: Signals, tau_band: np.ndarray, moving: list[int], src: str
 ) -> None:
-    """Refuse a record whose two angle columns (of joints that move) are swapped: the nominal model fed them the
-    other way round fits the measured torque (`tau_band`: in the analysis band) far better (`ANGLE_SWAP_RATIO`)
+    """Refuse a record whose angle zero is half a turn off the model's (a hinge's, or every moving hinge's: the
+    zero upright where the model's hangs), or whose two angle columns (of joints that move) are swapped: the
+    nominal model fed them turned by pi, or the other way round, fits the measured torque (`tau_band`: in the
+    analysis band) far better (`ANGLE_SWAP_RATIO`)
     than fed them as given. Joints of other kinds (a hinge and a slide) are not paired.
 
     Raises:
@@ -380,6 +398,22 @@ def _check_angle_columns(
     def column(j: int) -> str:
         return _file_column(data, f"q_{plant.joint_names[j]}")
 
+    found: list[tuple[float, str]] = []  # (misfit, what the refusal says) of every alternative reading
+    hinges = [j for j in moving if plant.hinge[j]]
+    for turned in [[j] for j in hinges] + ([hinges] if len(hinges) > 1 else []):
+        shifted = q.copy()
+        shifted[:, turned] += np.pi
+        other = misfit(joint_torque(plant, shifted, dq, ddq)[0])
+        found.append(
+            (
+                other,
+                f"the zero of {' and '.join(column(j) for j in turned)} looks half a turn off the model's: the "
+                f"nominal model misses the measured torque by {own:.3g} (RMS over the actuated joints) with the "
+                f"angles as given and by {other:.3g} with pi added (gravity then pulls the other way); give an "
+                "offset of 3.14159 (or -3.14159) in the column mapping (data.columns.q_<joint>: {column, offset}), "
+                "or set diagnose.check_torque_signs=false",
+            )
+        )
     for x, i in enumerate(moving):
         for j in moving[x + 1 :]:
             if plant.hinge[i] != plant.hinge[j]:
@@ -387,13 +421,19 @@ def _check_angle_columns(
             order = np.arange(plant.nv)
             order[[i, j]] = j, i
             other = misfit(joint_torque(plant, q[:, order], dq[:, order], ddq[:, order])[0])
-            if other < ANGLE_SWAP_RATIO * own:
-                raise DataError(
-                    f"{src}: {column(i)} and {column(j)} look swapped: the nominal model misses the measured torque "
-                    f"by {own:.3g} (RMS over the actuated joints) with the angles as given and by {other:.3g} with "
+            found.append(
+                (
+                    other,
+                    f"{column(i)} and {column(j)} look swapped: the nominal model misses the measured torque by "
+                    f"{own:.3g} (RMS over the actuated joints) with the angles as given and by {other:.3g} with "
                     "them exchanged; map them the other way round in data.columns (or set "
-                    "diagnose.check_torque_signs=false)"
+                    "diagnose.check_torque_signs=false)",
                 )
+            )
+    if found:
+        other, what = min(found, key=lambda f: f[0])
+        if other < ANGLE_SWAP_RATIO * own:
+            raise DataError(f"{src}: {what}")
 
 
 def _rows(rec: _Record) -> np.ndarray:

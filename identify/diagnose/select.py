@@ -50,6 +50,7 @@ independent sample in sixty, and counting all of them would let any column throu
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -61,6 +62,9 @@ from identify.diagnose.candidates import FRICTIONLOSS_EFFECTS, Candidate, Signal
 from identify.diagnose.statistics import LinearFit, correlation_time, fit_bounded
 
 __all__ = ["LinearFit", "SelectionOptions", "Step", "fit_columns", "select_effects"]
+
+
+MAX_FOLDS = 50  # cross-validation blocks of one record at most (each must hold a stretch of the motion)
 
 
 @dataclass(frozen=True)
@@ -114,11 +118,23 @@ class SelectionOptions:
     offset_independence: float = 0.9
 
     def __post_init__(self) -> None:
+        for name, value in vars(self).items():  # NaN passes every comparison below: refuse it first
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
         for name in ("min_gain", "min_gain_records", "offset_independence"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"{name} must lie in [0, 1), got {getattr(self, name)}")
-        if self.folds < 2:
-            raise ValueError(f"folds must be >= 2, got {self.folds}")
+        for name in ("min_independence", "confound_independence"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must lie in [0, 1] (a share of a column's norm), got {getattr(self, name)}")
+        for name in ("bic_margin", "min_z", "min_z_records", "native_preference", "min_delay_samples"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name, low, high in (("folds", 2, MAX_FOLDS), ("max_findings", 1, None)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < low or (high is not None and value > high):
+                within = f"in [{low}, {high}]" if high is not None else f">= {low}"
+                raise ValueError(f"{name} must be an integer {within}, got {value!r}")
 
 
 @dataclass(frozen=True)
