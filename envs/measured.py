@@ -184,16 +184,17 @@ def read_measured(
     assert q is not None
     for j, n in enumerate(names):
         dq = arrays["dq"]
-        fixed, found, h, tl = _repair_joint(
-            t,
-            q[:, j],
-            None if dq is None else dq[:, j],
-            max_speed=max_speed,
-            label=labels[f"q_{n}"],
-            rows=rows,
-            src=src,
-            repair=repair,
-        )
+        with np.errstate(over="ignore", invalid="ignore"):  # a glitch near the largest double overflows its steps
+            fixed, found, h, tl = _repair_joint(
+                t,
+                q[:, j],
+                None if dq is None else dq[:, j],
+                max_speed=max_speed,
+                label=labels[f"q_{n}"],
+                rows=rows,
+                src=src,
+                repair=repair,
+            )
         q[:, j] = fixed
         repairs += found
         head, tail = max(head, h), max(tail, tl)
@@ -898,15 +899,16 @@ def _rate_ratio(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float | None:
     w = int(min(max(3, round(0.05 / h)), len(t) // 4))
     if w < 1:
         return None
-    integral = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
-    dx, di = x[w:] - x[:-w], integral[w:] - integral[:-w]
-    big = np.abs(di) >= max(0.25 * np.abs(di).max(), 0.02)
-    if big.sum() < 10:
-        moving = np.abs(dx) >= max(0.25 * np.abs(dx).max(), 0.02)
-        if moving.sum() >= 10 and np.all(np.abs(di[moving]) < 0.1 * np.abs(dx[moving])):
-            return float("inf")
-        return None
-    return float(np.median(dx[big] / di[big]))
+    with np.errstate(over="ignore", invalid="ignore"):  # a glitch near the largest double (repaired later)
+        integral = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+        dx, di = x[w:] - x[:-w], integral[w:] - integral[:-w]
+        big = np.abs(di) >= max(0.25 * np.abs(di).max(), 0.02)
+        if big.sum() < 10:
+            moving = np.abs(dx) >= max(0.25 * np.abs(dx).max(), 0.02)
+            if moving.sum() >= 10 and np.all(np.abs(di[moving]) < 0.1 * np.abs(dx[moving])):
+                return float("inf")
+            return None
+        return float(np.median(dx[big] / di[big]))
 
 
 def _startup_rows(t: np.ndarray) -> int:

@@ -315,14 +315,17 @@ def test_wrap_around_is_refused_when_repair_is_off(tmp_path: Path, plant: Plant)
         read_measured(write(tmp_path / "wrap.csv", cols), plant, repair=False)
 
 
-@pytest.mark.parametrize("value", [1e17, -1e300])
+@pytest.mark.parametrize("value", [1e17, -1e300, np.finfo(float).max])
 def test_a_huge_angle_is_a_glitch_not_a_wrap_around(tmp_path: Path, plant: Plant, value: float) -> None:
     """1e17 rad is a whole number of turns to within its rounding: it had been "unwrapped", leaving the sample
-    3.4 rad off and the rigid-body refit 27 times the noise."""
+    3.4 rad off and the rigid-body refit 27 times the noise (the largest double also printed overflow warnings)."""
     cols = table()
     clean = cols["q_shoulder"].copy()
     cols["q_shoulder"][500] = value
-    data = read_measured(write(tmp_path / "huge.csv", cols), plant)
+    path = write(tmp_path / "huge.csv", cols)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        data = read_measured(path, plant)
     (report,) = data.meta["repairs"]
     assert report.kind == "glitch" and report.rows == (500,)
     np.testing.assert_allclose(data.q[:, 0], clean, atol=1e-4)
