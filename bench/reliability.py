@@ -538,7 +538,7 @@ def _cases() -> list[Case]:
             DIAGNOSE,
             ("system=pendulum", "data.path={dir}/run_*.csv", *data[2:]),
             status=0,
-            prepare=lambda d, b: [shutil.copy(b / "data.csv", d / f"run_{i}.csv") for i in (1, 2)],
+            prepare=_halves,  # two different files (a copy of one file is refused: it cannot be fitted and validated)
         )
     )
     data_case("a folder in the list", copy, "folder", path="[{dir}/data.csv,{dir}]")
@@ -587,6 +587,14 @@ def _judge(case: Case, d: Path, base: Path) -> dict:
         problems.append(trouble)
     verdict = "well" if not problems else ("partly" if proc.returncode == case.status else "badly")
     return {"case": case.name, "verdict": verdict, "status": proc.returncode, "last_line": last, "why": problems}
+
+
+def _halves(d: Path, b: Path) -> None:
+    """run_1.csv and run_2.csv: the first and the second half of the base run's data.csv."""
+    header, *rows = (b / "data.csv").read_text().splitlines()
+    half = len(rows) // 2
+    for i, part in ((1, rows[:half]), (2, rows[half:])):
+        (d / f"run_{i}.csv").write_text("\n".join([header, *part]) + "\n")
 
 
 def main() -> None:

@@ -624,7 +624,9 @@ def _resolve_columns(
         out[key] = _Column(name, where[name], scale, offset)
     by_column: dict[str, list[str]] = {}
     for key, c in out.items():  # a joint's torque and its command may share a column (a log of commands only)
-        by_column.setdefault(c.name, []).append(key.replace("tau_cmd_", "tau_"))
+        by_column.setdefault(c.name, []).append(
+            "tau_" + key.removeprefix("tau_cmd_") if key.startswith("tau_cmd_") else key
+        )
     for name, keys in by_column.items():
         if len(set(keys)) > 1:
             mapped = [k for k, c in out.items() if c.name == name]
@@ -745,8 +747,8 @@ def _check_angle_units(
                 if not np.isfinite(ratio):
                     raise DataError(
                         f"{src}: {ldq} stays near zero while {lq} moves (rows 0-{len(t) - 1}): a stuck velocity "
-                        "column; without it (dropped from the file or the column mapping) the velocity is derived "
-                        "from the angle"
+                        "column; without velocities (remove or rename every dq_ column: they are given for every "
+                        "joint or none) they are derived from the angles"
                     )
                 if abs(ratio * _DEGREE - 1) < 0.25:
                     why = f"{lq} looks like degrees (180/pi = 57.3); the harness expects radians"
@@ -904,8 +906,11 @@ def _rate_ratio(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float | None:
         dx, di = x[w:] - x[:-w], integral[w:] - integral[:-w]
         big = np.abs(di) >= max(0.25 * np.abs(di).max(), 0.02)
         if big.sum() < 10:
-            moving = np.abs(dx) >= max(0.25 * np.abs(dx).max(), 0.02)
-            if moving.sum() >= 10 and np.all(np.abs(di[moving]) < 0.1 * np.abs(dx[moving])):
+            # the angle as it moves, before the repairs: unwrapped, and a running median through its glitches
+            smooth = median_filter(np.unwrap(np.nan_to_num(x)), size=min(2 * _GLITCH_MAX_RUN + 1, len(x)))
+            ds = smooth[w:] - smooth[:-w]
+            moving = np.abs(ds) >= max(0.25 * np.abs(ds).max(), 0.02)
+            if moving.mean() >= 0.1 and np.all(np.abs(di[moving]) < 0.1 * np.abs(ds[moving])):
                 return float("inf")
             return None
         return float(np.median(dx[big] / di[big]))

@@ -28,14 +28,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import base_parameters
 from dynamics.errors import DataError
-from dynamics.plant import Plant, load_plant
+from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, atomic_write
 from envs.measured import read_many
 from envs.split import split_train_validation
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
-from harness.setup import CONF_DIR, with_auto_system, with_model_defaults
+from harness.setup import CONF_DIR, load_system, with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
@@ -186,7 +186,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     unknown = [e for e in opts.effects if e not in CANDIDATE_EFFECTS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
-    plant = load_plant(cfg.system.mjcf)
+    plant = load_system(cfg)
     cfg = with_model_defaults(cfg, plant)
     outputs = ("diagnosis.rrd", *_mjcf_names(plant), "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
@@ -248,7 +248,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         derivatives=derivatives,
         derivative_options=derivative_options,
         anomalies=anomalies,
-        selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
+        selection=SelectionOptions(**OmegaConf.to_container(opts.selection, resolve=True)),  # type: ignore[arg-type]
         window_s=float(opts.window_s),
         band_hz=_band_hz(cfg),
         record_offsets=record_offsets(cfg),

@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import BaseParameters
 from dynamics.errors import ModelError
-from dynamics.plant import Plant, load_plant
+from dynamics.plant import Plant
 from dynamics.prior import Prior, PriorSpec, make_prior
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
@@ -35,6 +35,7 @@ from harness.setup import (
     CONF_DIR,
     design_from_config,
     experiment_from_config,
+    load_system,
     simulate_design,
     with_auto_system,
     with_model_defaults,
@@ -103,7 +104,7 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
         s = stops[0]
         raise ModelError(
             f"the simulated motion presses joint {s['joint']!r} against its range limit in {s['samples']} of "
-            f"{data.n_samples} samples (first at t = {s['first_t_s']:.3f} s, up to {s['max_force']:.3g} N m or N; "
+            f"{data.n_samples} samples (first at t = {s['first_t_s']:.3f} s, up to {s['max_force']:.3g} {s['unit']}; "
             f"{len(stops)} joint(s) in all): the limit's force enters the torque and no model has it; keep the motion "
             "further inside the range (a larger system.limits.range_margin, or a faster controller where the "
             "tracking error reaches the stop) or widen the range (and any limit margin)"
@@ -201,7 +202,7 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
         ConfigError: a config value is wrong (named by its key).
         RunFolderError: the output folder cannot be used.
     """
-    loaded = load_plant(cfg.system.mjcf)
+    loaded = load_system(cfg)
     check_driven(loaded)
     cfg = with_model_defaults(cfg, loaded)
     validate_run_config(cfg, loaded)

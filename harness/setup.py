@@ -15,7 +15,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dynamics.base import BaseParameters, base_parameters
-from dynamics.errors import InfeasibleExcitationError
+from dynamics.errors import InfeasibleExcitationError, ModelError
 from dynamics.plant import SYSTEMS, Plant, load_plant
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset
@@ -26,6 +26,7 @@ from excitation.limits import Limits, limits_for
 from excitation.registry import design_excitation
 from harness.defaults import resolve_system
 from harness.progress import Progress
+from harness.validate import ConfigError
 
 __all__ = [
     "CONF_DIR",
@@ -64,6 +65,21 @@ def with_auto_system(overrides: Sequence[str]) -> list[str]:
     return ["system=auto", *out]
 
 
+def load_system(cfg: DictConfig) -> Plant:
+    """The plant of `system.mjcf`.
+
+    Raises:
+        ConfigError: the value names no model (an unknown system, a missing file or folder, a log): the key named.
+        ModelError: the model itself cannot be used (MuJoCo rejects it, unsupported joints, ...).
+    """
+    try:
+        return load_plant(cfg.system.mjcf)
+    except ModelError:
+        raise
+    except ValueError as err:  # mjcf_path: what the value names is no model file
+        raise ConfigError(f"system.mjcf: {err}") from None
+
+
 def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:
     """`cfg` with every null of its system node filled from the model; prints what it assumed."""
     system, assumed = resolve_system(cfg.system, plant)
@@ -72,6 +88,7 @@ def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:
     print(f"system settings taken from the model {plant.source or plant.path} (set any to override it):")
     for key, value in assumed.items():
         print(f"  system.{key}={value}")
+    print("and what the model itself bounds (edit the model to change it):")
     for line in model_limits(plant):
         print(f"  {line}")
     out = cfg.copy()
@@ -174,7 +191,7 @@ class Experiment:
 
 def experiment_from_config(cfg: DictConfig, rng: np.random.Generator, *, plant: Plant | None = None) -> Experiment:
     """The plant, limits, parameter model (with its base parameters, found with `rng`) and sensor of `cfg`."""
-    plant = plant or load_plant(cfg.system.mjcf)
+    plant = plant or load_system(cfg)
     limits = limits_from_config(cfg.system, plant)
     model = ParameterModel(plant, tuple(cfg.system.effects))
     return Experiment(plant, limits, model, base_parameters(model, rng), sensor_from_config(cfg, plant))

@@ -323,7 +323,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         valid = ", ".join(sorted(SelectionOptions.__dataclass_fields__))
         raise ConfigError(f"diagnose.selection.{unknown[0]} is not a threshold of the selection; valid keys: {valid}")
     try:
-        SelectionOptions(**OmegaConf.to_container(selection))  # type: ignore[arg-type]
+        SelectionOptions(**OmegaConf.to_container(selection, resolve=True))  # type: ignore[arg-type]
     except ValueError as err:
         raise ConfigError(f"diagnose.selection.{err}") from None
     _number(cfg, "data.validation_fraction", low=0.0, low_open=True, high=0.9)

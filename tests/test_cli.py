@@ -14,6 +14,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from dynamics.errors import InfeasibleExcitationError
 from harness.run import run
+from harness.validate import ConfigError
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,6 +70,15 @@ def test_unknown_system_lists_the_valid_ones() -> None:
 def test_unknown_estimator_group_lists_the_valid_ones() -> None:
     with pytest.raises(MissingConfigException, match=r"(?s)estimator.*ols.*wls"):
         compose_config(["estimator=kalman_magic"])
+
+
+def test_a_model_path_that_names_no_model_is_refused_by_its_key(tmp_path: Path) -> None:
+    """A folder (or a log) given as the model: the refusal names system.mjcf, as every config error names its key."""
+    (tmp_path / "robot").mkdir()
+    cfg = compose_config(["record=none", f"system.mjcf={tmp_path / 'robot'}"])
+    with pytest.raises(ConfigError, match=r"^system\.mjcf: model path is a directory, not a file: .*robot"):
+        run(cfg, output_dir=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
 
 
 def test_unknown_estimator_name_fails_before_any_work(tmp_path: Path) -> None:

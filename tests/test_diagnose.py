@@ -325,7 +325,7 @@ def test_an_angle_zero_half_a_turn_off_is_named_not_blamed_on_the_torque(turned:
 @pytest.mark.parametrize(
     ("factor", "noise", "share"),
     [(1e-3, 0.0, r"0\.001"), (0.0, 1e-9, r"[\d.]+e-\d+"), (1e3, 0.0, "1e\\+03")],
-    ids=["mN_m_read_as_N_m", "dead_sensor", "kN_m_read_as_N_m"],
+    ids=["kN_m_read_as_N_m", "dead_sensor", "mN_m_read_as_N_m"],
 )
 def test_a_torque_column_far_off_the_nominal_size_is_refused(
     factor: float, noise: float, share: str, tmp_path: Path
@@ -337,6 +337,15 @@ def test_a_torque_column_far_off_the_nominal_size_is_refused(
     tau[:, 0] = factor * tau[:, 0] + noise * np.random.default_rng(0).standard_normal(len(tau))
     with pytest.raises(DataError, match=rf"tau_shoulder varies {share} times as much as the torque the nominal model"):
         run_diagnosis(plant, dataclasses.replace(train, tau=tau), validation)
+    if factor < 1:  # a joint commanded zero torque (driven passive) carries about none: not refused for that
+        from identify.diagnose.diagnosis import _records, check_torque_columns
+
+        cmd = np.zeros_like(tau) if train.tau_cmd is None else train.tau_cmd.copy()
+        cmd[:, 0] = 0.0
+        passive = dataclasses.replace(train, tau=tau, tau_cmd=cmd)
+        check_torque_columns(
+            plant, passive, _records(plant, [passive], "butterworth", {"cutoff_hz": 10.0}, None)[0].signals
+        )
 
 
 def test_a_joint_frozen_in_every_training_file_is_named_in_the_refusal(tmp_path: Path) -> None:

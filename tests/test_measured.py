@@ -338,6 +338,25 @@ def test_a_velocity_column_stuck_at_zero_is_refused(tmp_path: Path, plant: Plant
         read_measured(write(tmp_path / "stuck.csv", cols), plant)
 
 
+@pytest.mark.parametrize("kind", ["wrap", "glitch"])
+def test_a_slow_joint_with_a_wrap_or_a_glitch_keeps_its_velocity_column(
+    tmp_path: Path, plant: Plant, kind: str
+) -> None:
+    """The stuck-velocity check reads the angle unwrapped and through a running median: a joint swinging +-0.1 rad
+    across pi (its encoder wrapping there) or +-0.01 rad with a 5-sample glitch of 3 rad, with a right velocity,
+    is repaired, not refused (found in review: both had been called a stuck velocity)."""
+    cols = table(5000)
+    w = 2 * np.pi * 0.3
+    if kind == "wrap":
+        swing = np.pi + 0.1 * np.sin(w * cols["time"])
+        cols["q_elbow"], cols["dq_elbow"] = (swing + np.pi) % (2 * np.pi) - np.pi, 0.1 * w * np.cos(w * cols["time"])
+    else:
+        cols["q_elbow"], cols["dq_elbow"] = 0.01 * np.sin(w * cols["time"]), 0.01 * w * np.cos(w * cols["time"])
+        cols["q_elbow"][2000:2005] += 3.0
+    data = read_measured(write(tmp_path / f"{kind}.csv", cols), plant)
+    assert [r.kind for r in data.meta["repairs"]] == [kind]
+
+
 def test_one_file_column_mapped_to_two_names_is_refused(tmp_path: Path, plant: Plant) -> None:
     path = write(tmp_path / "run.csv", table())
     with pytest.raises(DataError, match=r"column 'tau_shoulder' is mapped to tau_elbow, tau_shoulder: each needs"):
