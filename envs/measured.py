@@ -555,7 +555,9 @@ def _locate_bad_cell(
         for row, cells in enumerate(rows):
             for index, name in used:
                 try:
-                    if "_" in cells[index]:  # Python reads 1_0 as 10; numpy's reader (and a CSV) does not
+                    # Python reads 1_0 as 10, and digits of other scripts (Arabic-Indic, full-width) as numbers;
+                    # numpy's reader (and a CSV) does not
+                    if "_" in cells[index] or not cells[index].isascii():
                         raise ValueError(cells[index])
                     float(cells[index])
                 except ValueError:
@@ -569,6 +571,8 @@ def _cell_hint(cell: str, name: str, delimiter: str) -> str:
     """Why a cell may not be a number: a decimal comma, or a date or clock time in the time column."""
     if "," in cell and delimiter != "," and cell.replace(",", ".", 1).replace(".", "", 1).strip("+-").isdigit():
         return " (a decimal comma? write numbers with a decimal point)"
+    if not cell.isascii() and any(c.isdigit() for c in cell):
+        return " (digits of another script? write the ASCII digits 0-9)"
     if name == "time" and re.search(r"\d[-:/]\d", cell):
         return (
             " (a date or clock time? the harness expects time in seconds as a number: convert the time stamps to "

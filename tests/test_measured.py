@@ -152,7 +152,8 @@ def test_unknown_column_is_named(
         read_measured(write(tmp_path / "unknown.csv", cols), plant, columns=columns)
 
 
-@pytest.mark.parametrize("cell", ["n/a", "1_0"])  # Python's float() reads 1_0 as 10: the cell was not located
+# Python's float() reads 1_0 as 10, and Arabic-Indic or full-width digits as numbers: the cell was not located
+@pytest.mark.parametrize("cell", ["n/a", "1_0", "\u0661\u0662", "\uff11.\uff15"])
 def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant, cell: str) -> None:
     path = write(tmp_path / "text.csv", table(), cell=("tau_elbow", 7, cell))
     with pytest.raises(DataError, match=rf"text\.csv: column 'tau_elbow', row 7 \(line 9\): '{cell}' is not a number"):
