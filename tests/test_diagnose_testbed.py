@@ -300,3 +300,42 @@ def test_a_joint_held_by_its_nominal_frictionloss_is_not_a_discrepancy(
     assert [(f.effect, f.target) for f in dg.findings] == [expected]
     f = dg.findings[0]
     assert abs(f.value - effects[0].size) < 3 * f.std, (f.value, f.std)
+
+
+def test_the_hidden_effect_table_judges_the_value_against_its_std() -> None:
+    """`ok` judges the name and the verdict; the table's (value - truth) / std column and its closing line say
+    where a named value misses the truth (a gain's headline is 1 + size)."""
+    from types import SimpleNamespace
+
+    from identify.diagnose.testbed import _z, hidden_markdown
+
+    gain = Injected("torque_gain", "elbow", 0.1)
+    assert _z(SimpleNamespace(effect="torque_gain", value=1.101, std=0.001), gain) == pytest.approx(1.0)
+    assert _z(SimpleNamespace(effect="armature", value=1.0, std=0.001), gain) is None  # another effect first
+    assert _z(SimpleNamespace(effect="torque_gain", value=1.0, std=None), gain) is None  # at a bound: no std
+    row = {"system": "two_link", "expect": "named", "verdict": "explained", "joint": "elbow", "ok": True}
+    rows = [
+        {
+            **row,
+            "truth": "torque_gain elbow 0.1",
+            "named_first": "torque_gain elbow",
+            "value": 1.101,
+            "std": 0.001,
+            "z": 1.0,
+            "nominal_rms": 0.1,
+            "calibrated_rms": 0.02,
+        },
+        {
+            **row,
+            "truth": "stribeck_friction elbow 0.08",
+            "named_first": "stribeck_friction elbow",
+            "value": 0.0425,
+            "std": 0.0046,
+            "z": -8.1,
+            "nominal_rms": 0.02,
+            "calibrated_rms": 0.02,
+        },
+    ]
+    text = hidden_markdown(rows)
+    assert "| 1.101 ± 0.001 | +1.0 | explained |" in text
+    assert "named first: 1 of 2; beyond: stribeck_friction elbow 0.08 (-8.1)." in text

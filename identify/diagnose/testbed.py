@@ -419,6 +419,7 @@ def hidden_effect_table(seed: int = 0) -> list[dict[str, Any]]:
                 "named_first": first.name if first else "-",
                 "value": first.value if first else None,
                 "std": first.std if first else None,
+                "z": _z(first, truth),
                 "verdict": dg.verdict,
                 "findings": [f.name for f in dg.findings],
                 "nominal_rms": dg.models["nominal"]["torque_rms"][name],
@@ -429,6 +430,15 @@ def hidden_effect_table(seed: int = 0) -> list[dict[str, Any]]:
         )
         print(rows[-1]["system"], rows[-1]["truth"], rows[-1]["named_first"], dg.verdict, rows[-1]["ok"], flush=True)
     return rows
+
+
+def _z(first: Any, truth: Injected | None) -> float | None:
+    """(value - truth) / std of the first finding where it is the hidden effect itself (its headline value the
+    injected size; a gain's is 1 + size) and has a std; None otherwise."""
+    if first is None or truth is None or first.effect != truth.effect or not (first.std and np.isfinite(first.std)):
+        return None
+    size = 1.0 + truth.size if truth.effect == "torque_gain" else truth.size
+    return float((first.value - size) / first.std)
 
 
 def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
@@ -446,15 +456,25 @@ def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
 
 
 def hidden_markdown(rows: list[dict[str, Any]]) -> str:
+    """The table, with (value - truth) / std where the first finding is the hidden effect itself, and a line
+    counting those within 3 std (`ok` judges the name and the verdict only)."""
     lines = [
-        "| system | hidden | expected | named first | value ± std | verdict | RMS nominal → calibrated [N m] | ok |",
-        "|---|---|---|---|---:|---|---:|---|",
+        "| system | hidden | expected | named first | value ± std | (value − truth) / std | verdict | "
+        "RMS nominal → calibrated [N m] | ok |",
+        "|---|---|---|---|---:|---:|---|---:|---|",
     ]
     for r in rows:
         value = "-" if r["value"] is None else f"{r['value']:.4g} ± {r['std']:.2g}"
+        z = "-" if r.get("z") is None else f"{r['z']:+.1f}"
         rms = f"{r['joint']}: {r['nominal_rms']:.4f} → {r['calibrated_rms']:.4f}"
         lines.append(
-            f"| {r['system']} | {r['truth']} | {r['expect']} | {r['named_first']} | {value} | {r['verdict']} | "
+            f"| {r['system']} | {r['truth']} | {r['expect']} | {r['named_first']} | {value} | {z} | {r['verdict']} | "
             f"{rms} | {'yes' if r['ok'] else '**no**'} |"
         )
+    zs = [(r["z"], r["truth"]) for r in rows if r.get("z") is not None]
+    if zs:
+        within = sum(abs(z) <= 3 for z, _ in zs)
+        off = ", ".join(f"{t} ({z:+.1f})" for z, t in zs if abs(z) > 3) or "none"
+        head = "Values within 3 std of the truth where the hidden effect is named first"
+        lines += ["", f"{head}: {within} of {len(zs)}; beyond: {off}."]
     return "\n".join(lines)
