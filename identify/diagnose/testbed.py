@@ -196,7 +196,7 @@ def rollout(
     excited and measured with `system`'s settings.
 
     Returns:
-        (the nominal plant, the measured record: time, q, tau, with tau_lead_s of half a sample).
+        (the nominal plant, the measured record: time, q, tau, with the tau_lead_s of its held torque).
     """
     plant = load_plant(mjcf if mjcf is not None else system)
     cfg = SYSTEMS[system]
@@ -228,7 +228,11 @@ def rollout(
         for _ in range(substeps):
             d.qfrc_applied[:] = _applied_forces(effects, plant.joint_names, float(d.time), d.qpos, d.qvel)
             mujoco.mj_step(m, d)
-    return plant, _measure(plant, effects, time, q_log, tau_log, cfg, rng, source)
+    # the torque is held over a sample; the semi-implicit integrators' positions trail the continuous motion by
+    # half a physics step, so the torque's instant is (dt - h) / 2 after the sample (dt / 2 under RK4), as
+    # `envs.simulate` has it
+    h = 0.0 if m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else float(m.opt.timestep)
+    return plant, _measure(plant, effects, time, q_log, tau_log, cfg, rng, source, lead_s=0.5 * (1.0 / rate_hz - h))
 
 
 def _measure(
@@ -240,9 +244,10 @@ def _measure(
     cfg: TestbedSystem,
     rng: np.random.Generator,
     source: str,
+    *,
+    lead_s: float,
 ) -> Dataset:
     q, tau = q.copy(), tau.copy()
-    dt = time[1] - time[0]
     for e in effects:
         j = plant.joint_names.index(e.joint)
         if e.effect == "time_delay":
@@ -265,7 +270,7 @@ def _measure(
         joint_names=plant.joint_names,
         actuated=act,
         source=source,
-        tau_lead_s=0.5 * dt,
+        tau_lead_s=lead_s,
         meta={"generator": "identify.diagnose.testbed", "effects": [e.__dict__ for e in effects]},
     )
 
