@@ -145,6 +145,16 @@ class Plant:
         return np.asarray(m.jnt_type[m.dof_jntid] == int(mujoco.mjtJoint.mjJNT_HINGE))
 
     @property
+    def torque_units(self) -> tuple[str, ...]:
+        """(nv,) the unit of each joint's torque: N m on a hinge, N on a slide."""
+        return tuple("N m" if h else "N" for h in self.hinge)
+
+    @property
+    def position_units(self) -> tuple[str, ...]:
+        """(nv,) the unit of each joint's position: rad on a hinge, m on a slide."""
+        return tuple("rad" if h else "m" for h in self.hinge)
+
+    @property
     def parameter_names(self) -> tuple[str, ...]:
         """Names of `theta`: symbol and 1-based joint index, e.g. `ZZ1`, `m2`."""
         return tuple(f"{s}{j + 1}" for j in range(self.nv) for s in INERTIAL_SYMBOLS)

@@ -810,7 +810,7 @@ def _check_torque_units(
             bound = _TORQUE_LIMIT_FACTOR * limit if limited else _MAX_TORQUE
             if typical <= bound:
                 continue
-            unit = "N m" if plant.hinge[j] else "N"
+            unit = plant.torque_units[j]
             k = int(np.argmax(size))
             against = (
                 f"{typical / limit:.3g} times the actuator limit {limit:.4g} {unit} of {plant.name}"

@@ -427,7 +427,7 @@ def _limit_report(plant: Plant, t: np.ndarray, force: np.ndarray, applied: np.nd
                     "samples": int(rows.size),
                     "first_t_s": float(t[rows[0]]),
                     "max_force": float(np.abs(force[:, j]).max()),
-                    "unit": "N m" if plant.hinge[j] else "N",
+                    "unit": plant.torque_units[j],
                 }
             )
     return sorted(out, key=lambda e: -e["samples"])

@@ -39,7 +39,6 @@ from harness.setup import CONF_DIR, load_system, with_auto_system, with_model_de
 from harness.validate import ConfigError, check_command_line, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
-    CANDIDATE_EFFECTS,
     Diagnosis,
     ReferenceModel,
     SelectionOptions,
@@ -182,10 +181,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     (`harness.rundir.claim`: writable, not in use, no finished diagnosis unless `overwrite=true`).
     """
     validate_diagnose_config(cfg)
-    opts = cfg.diagnose
-    unknown = [e for e in opts.effects if e not in CANDIDATE_EFFECTS]
-    if unknown:
-        raise ValueError(f"unknown effect(s) {unknown}; valid choices: {', '.join(sorted(CANDIDATE_EFFECTS))}")
     plant = load_system(cfg)
     cfg = with_model_defaults(cfg, plant)
     outputs = ("diagnosis.rrd", *_mjcf_names(plant), "diagnosis.json")
@@ -264,7 +259,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     final: Diagnosis | None = None
     if bool(opts.get("final_fit", True)):
         stage(f"fitting the same diagnosis on every record ({sum(d.n_samples for d in datasets)} rows)")
-        final = run_diagnosis(datasets)
+        final = run_diagnosis(datasets, check_torque_signs=False)  # the same records the first fit checked
         payload["final_fit"] = _final_fit_entry(final, final_name, datasets)
     payload["seed"] = int(cfg.seed)
     payload["units"] = _units(plant)
@@ -449,8 +444,8 @@ def _final_fit_entry(final: Diagnosis, mjcf_name: str, datasets: Sequence[Datase
 def _units(plant: Plant) -> dict[str, dict[str, str]]:
     """Per joint: the unit of its torque (`torque`: N m on a hinge, N on a slide) and of its angle (`angle`)."""
     return {
-        j: {"torque": "N m", "angle": "rad"} if hinge else {"torque": "N", "angle": "m"}
-        for j, hinge in zip(plant.joint_names, plant.hinge, strict=True)
+        j: {"torque": torque, "angle": angle}
+        for j, torque, angle in zip(plant.joint_names, plant.torque_units, plant.position_units, strict=True)
     }
 
 

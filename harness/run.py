@@ -89,12 +89,16 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
         ModelError: the motion pressed geoms together or a joint against its range limit: contact and limit
             forces are in the torque and no model has them.
     """
+
+    def seen(e: dict[str, Any]) -> str:  # where an unmodelled force showed, from a simulator's report entry
+        return f"in {e['samples']} of {data.n_samples} samples (first at t = {e['first_t_s']:.3f} s"
+
     contacts = data.meta.get("contacts", [])
     if contacts:
         c = contacts[0]
         raise ModelError(
-            f"the simulated motion presses geom {c['geoms'][0]} against {c['geoms'][1]} in {c['samples']} of "
-            f"{data.n_samples} samples (first at t = {c['first_t_s']:.3f} s; {len(contacts)} pair(s) in all): "
+            f"the simulated motion presses geom {c['geoms'][0]} against {c['geoms'][1]} {seen(c)}; "
+            f"{len(contacts)} pair(s) in all): "
             "contact forces enter the torque and no model has them; keep them apart (a larger "
             "system.limits.clearance_m, which also covers world geoms only where they are the floor plane) or take "
             'them out of collision (contype="0" conaffinity="0")'
@@ -103,9 +107,9 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
     if stops:
         s = stops[0]
         raise ModelError(
-            f"the simulated motion presses joint {s['joint']!r} against its range limit in {s['samples']} of "
-            f"{data.n_samples} samples (first at t = {s['first_t_s']:.3f} s, up to {s['max_force']:.3g} {s['unit']}; "
-            f"{len(stops)} joint(s) in all): the limit's force enters the torque and no model has it; keep the motion "
+            f"the simulated motion presses joint {s['joint']!r} against its range limit {seen(s)}, up to "
+            f"{s['max_force']:.3g} {s['unit']}; {len(stops)} joint(s) in all): the limit's force enters the torque "
+            "and no model has it; keep the motion "
             "further inside the range (a larger system.limits.range_margin, or a faster controller where the "
             "tracking error reaches the stop) or widen the range (and any limit margin)"
         )
@@ -293,7 +297,7 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         "validation": {
             "torque_rms": val_rms,
             "noise_std": dict(zip(plant.joint_names, noise_std.tolist(), strict=True)),
-            "unit": {n: "N m" if hinge else "N" for n, hinge in zip(plant.joint_names, plant.hinge, strict=True)},
+            "unit": dict(zip(plant.joint_names, plant.torque_units, strict=True)),
             "samples": int(rows.sum()),
             "simulated": val_motion,
         },

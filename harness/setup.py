@@ -106,15 +106,14 @@ def model_limits(plant: Plant) -> list[str]:
         lo, hi = plant.q_range[j]
         if not (np.isfinite(lo) and np.isfinite(hi)):
             return f"{plant.joint_names[j]} unlimited"
-        unit = "rad" if plant.hinge[j] else "m"
         extra = f" (margin {margin[j]:.4g})" if margin[j] else ""
-        return f"{plant.joint_names[j]} [{lo:.4g}, {hi:.4g}] {unit}{extra}"
+        return f"{plant.joint_names[j]} [{lo:.4g}, {hi:.4g}] {plant.position_units[j]}{extra}"
 
     def torque(j: int) -> str:
         if not plant.actuated[j]:
             return f"{plant.joint_names[j]} unactuated"
         limit = float(plant.tau_limit[j])
-        value = f"{limit:.4g} {'N m' if plant.hinge[j] else 'N'}" if np.isfinite(limit) else "unlimited"
+        value = f"{limit:.4g} {plant.torque_units[j]}" if np.isfinite(limit) else "unlimited"
         return f"{plant.joint_names[j]} {value}"
 
     return [

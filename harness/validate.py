@@ -309,6 +309,12 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
             f"diagnose.effects must be a list of effect names, e.g. diagnose.effects=[armature,viscous_friction], "
             f"got {effects!r}"
         )
+    from identify.diagnose import CANDIDATE_EFFECTS, SelectionOptions  # the core's own names and checks
+
+    unknown_effects = [e for e in effects if e not in CANDIDATE_EFFECTS]
+    if unknown_effects:
+        valid = ", ".join(sorted(CANDIDATE_EFFECTS))
+        raise ConfigError(f"diagnose.effects: unknown effect(s) {unknown_effects}; valid choices: {valid}")
     refs = _value(cfg, "diagnose.references")
     paths = isinstance(refs, ListConfig) and all(isinstance(r, str) for r in refs)
     if not (refs is None or isinstance(refs, str) or paths):
@@ -316,8 +322,6 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     selection = _value(cfg, "diagnose.selection")
     if not isinstance(selection, DictConfig):
         raise ConfigError(f"diagnose.selection must be a mapping of the selection's thresholds, got {selection!r}")
-    from identify.diagnose import SelectionOptions  # the core's own checks, named by their keys here
-
     unknown = sorted(set(selection) - set(SelectionOptions.__dataclass_fields__))
     if unknown:
         valid = ", ".join(sorted(SelectionOptions.__dataclass_fields__))
