@@ -485,7 +485,11 @@ def _summary(payload: dict[str, Any]) -> str:
         finite = f["std"] is not None and np.isfinite(f["std"])
         std = f" +- {f['std']:.2g}" if finite else ""  # a value at its bound has none
         bound = f" (at its {f['at_bound']} bound{'' if finite else ', no std'})" if f.get("at_bound") else ""
-        alts = "".join(f" or {c['effect']} {c['target']}".rstrip() for c in f.get("confounded_with", []))
+        alts = "".join(  # an alternative the finding absorbs carries the value it takes in the same fit
+            f" or {c['effect']} {c['target']}".rstrip()
+            + (f" ({c['value']:.4g} +- {c['std']:.2g})" if "value" in c else "")
+            for c in f.get("confounded_with", [])
+        )
         held = f" ({', '.join(f['held_nominal'])} nominal)" if f.get("held_nominal") else ""
         lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g}{std} {f['unit']}{bound}{alts}{held}")
     if "final_fit" in payload:

@@ -20,7 +20,7 @@ from identify.derivatives import derive_states
 from identify.diagnose import diagnose
 from identify.diagnose.anomalies import OUTSIDE_SHARE, describe_outside, outside_training
 from identify.diagnose.candidates import Signals, candidates, signals
-from identify.diagnose.diagnosis import _position_matters, _prediction_std
+from identify.diagnose.diagnosis import _absorbed_value, _position_matters, _prediction_std
 from identify.diagnose.statistics import LinearFit
 
 NAMES = ("a", "b")
@@ -235,3 +235,19 @@ def test_the_wheel_angle_changes_no_torque_and_the_pendulum_angle_does() -> None
         plant.joint_names[0]: True,
         plant.joint_names[1]: False,
     }
+
+
+def test_an_absorbed_column_takes_the_value_the_fit_gives_it_when_swapped_in() -> None:
+    """Columns u, v fitted as 2 u + 3 v, and a = u + v (absorbed: in their span). Swapped in for the column it
+    leans on most (v, the larger), the same torque is 3 a - 1 u: a takes 3, with the std of c_v (the covariance
+    carried through the same linear map), whatever the other columns of the fit."""
+    rng = np.random.default_rng(0)
+    u, v, w = rng.normal(size=200), 2.0 * rng.normal(size=200), rng.normal(size=200)
+    a = u + v
+    M = np.column_stack([w, u, v, a])
+    gram = M.T @ M
+    coef = np.array([0.5, 2.0, 3.0])
+    cov = np.diag([0.01, 0.04, 0.09])
+    value, std = _absorbed_value(gram, coef, cov, [1, 2], 3, 3)
+    assert value == pytest.approx(3.0, abs=1e-9) and std == pytest.approx(0.3, abs=1e-9)
+    assert _absorbed_value(gram, coef, cov, [0], 3, 3) is None  # w carries none of a

@@ -141,6 +141,20 @@ def test_first_joint_armature_is_reported_confounded_with_the_first_link_inertia
     assert f.to_dict()["confounded"] is True
 
 
+@pytest.mark.slow
+def test_an_armature_a_payload_absorbs_is_named_with_it_and_with_its_value() -> None:
+    """arm3: link 3's payload has an inertia about the vertical yaw axis, so its columns hold the yaw armature
+    whole and the selection never chooses the armature (nothing new). The payload finding must name it, with
+    the value it takes in the same fit near the truth; on the payload alone the armature is not named."""
+    _, dg = diagnose_case("arm3", [Injected("armature", "yaw", 0.02), Injected("payload", "elbow", 0.03)], seed=0)
+    f = next(f for f in dg.findings if f.effect == "payload")
+    alt = next(c for c in f.confounded_with if (c["effect"], c["target"]) == ("armature", "yaw"))
+    assert abs(alt["value"] - 0.02) < 0.1 * 0.02 and 0 < alt["std"] < 0.1 * alt["value"], alt
+    assert "armature yaw" in f.name and "armature" in f.separate_by
+    _, alone = diagnose_case("arm3", [Injected("payload", "elbow", 0.03)], seed=0)
+    assert not any(c["effect"] == "armature" for g in alone.findings for c in g.confounded_with), alone.findings
+
+
 def test_a_torque_that_leads_the_motion_gives_no_negative_delay_and_nothing_outside_its_range() -> None:
     """The logged torque 5 ms early (a negative delay): no finding may report a negative delay or any
     coefficient outside its candidate's physical range."""

@@ -109,7 +109,8 @@ class Finding:
             not defined), else None.
         fold_gains: relative drop of the held-out error in each cross-validation fold when it was added.
         confounded_with: the alternatives these data cannot separate from it: effect, target and the share
-            of its column left unexplained by the alternative (0: indistinguishable).
+            of its column left unexplained by the alternative (0: indistinguishable); for one its columns
+            absorb (`_with_confounding`), also the value and std the alternative takes in the same fit.
         separate_by: the motion that would separate it from those alternatives.
         note: how the calibrated MJCF holds it where MuJoCo has no attribute for it.
         held_nominal: parameters of the effect left at their nominal values: offset-like rigid-body columns
@@ -609,7 +610,9 @@ def diagnose(
         periodic=np.asarray(plant.stiffness) == 0,  # a joint spring's torque does not repeat every turn
         position_matters=_position_matters(s_tr),
     )
-    findings = _with_confounding(findings, steps, pool, s_tr, weights, X, m, selection.confound_independence)
+    findings = _with_confounding(
+        findings, steps, pool, s_tr, weights, X, m, selection.confound_independence, fit, z_floor
+    )
     # the selection names an effect only off its value of no effect; refitted with the effects chosen after it,
     # one can still end there (pinned at its bound): it then adds nothing to the model and is not named
     pinned = _pinned_at_null(findings, [st.candidate.null for st in steps])
@@ -883,6 +886,11 @@ def _separation(a: str, b: str, a_name: str = "", b_name: str = "") -> str:
     )
 
 
+# (finding's effect, alternative's effect) pairs where the finding's columns can hold the alternative whole: a
+# payload's inertia about a joint's axis holds that joint's rotor inertia (`_with_confounding`)
+ABSORBED = frozenset({("payload", "armature"), ("payload", "rotor_coupling")})
+
+
 def _with_confounding(
     findings: list[Finding],
     steps: list[Step],
@@ -892,12 +900,23 @@ def _with_confounding(
     X: np.ndarray,
     n_nuisance: int,
     threshold: float,
+    fit: LinearFit,
+    min_z: float,
 ) -> list[Finding]:
     """Name, with each finding, the candidates not chosen that these data cannot tell from it.
 
     A finding's headline column (weighted, in the band) is confounded with an alternative when the
     alternative's columns, together with the other findings' columns, leave less than `threshold` of its
     norm unexplained, while the other findings alone leave more (it is the alternative that explains it).
+
+    The other way round, a payload's inertia can absorb an inertial effect of a joint (`ABSORBED`): the
+    alternative's headline column lies (to within `threshold`) in the span of the chosen columns, and only with
+    the payload's columns among them (a payload's inertia about a vertical axis holds that joint's armature).
+    The alternative was then never chosen (nothing new). It is named with the finding where the fit carries
+    evidence of it (`_absorbed_value`): swapped in for the payload's column it leans on most, the same fitted
+    torque gives it a value inside its physical range, `min_z` std or more from no effect. That value and its
+    std are reported with it. Only these pairs: the payload's mass columns also span gravity-like effects
+    (gains, offsets) that the forward check above already names where they explain the payload's mass.
     """
     if not findings:
         return findings
@@ -927,6 +946,23 @@ def _with_confounding(
             share = _share_left(gram, head, others + list(range(offsets[k], offsets[k + 1])))
             if share < threshold < alone or (share < threshold and alone >= 1.5 * share):
                 alts.append({"effect": c.effect, "target": c.target, "independence": share})
+                continue
+            a, own = offsets[k], list(range(int(start[i]), int(start[i + 1])))
+            if (st.candidate.effect, c.effect) not in ABSORBED:
+                continue
+            absorbed = _share_left(gram, a, list(range(X.shape[2])))
+            without = _share_left(gram, a, others)
+            if not (absorbed < threshold < without or (absorbed < threshold and without >= 1.5 * absorbed)):
+                continue
+            swapped = _absorbed_value(gram, fit.coef, fit.cov, own, X.shape[2], a)
+            if swapped is None:
+                continue
+            value, std = swapped
+            inside = float(c.lower[0]) <= value <= float(c.upper[0])
+            if inside and abs(value) > min_z * std:
+                alts.append(
+                    {"effect": c.effect, "target": c.target, "independence": absorbed, "value": value, "std": std}
+                )
         if alts:
             alts.sort(key=lambda a: a["independence"])
             seen: set[tuple[str, str]] = set()
@@ -945,6 +981,32 @@ def _with_confounding(
             f = dataclasses.replace(f, confounded_with=unique, separate_by=sep)
         out.append(f)
     return out
+
+
+def _absorbed_value(
+    gram: np.ndarray, coef: np.ndarray, cov: np.ndarray, own: list[int], n: int, a: int
+) -> tuple[float, float] | None:
+    """(coefficient, std) column `a` takes when it replaces the finding's column it leans on most, the fitted
+    torque unchanged; None where it leans on none of them.
+
+    Args:
+        gram: Gram matrix of the weighted columns: the fit's `n` first, the alternatives' after.
+        coef, cov: (n,) the fit's coefficients and their covariance.
+        own: the finding's columns (indices below `n`).
+        n: number of the fit's columns.
+        a: the alternative's headline column.
+    """
+    span = list(range(n))
+    w = np.linalg.lstsq(gram[np.ix_(span, span)], gram[span, a], rcond=1e-12)[0]
+    lean = np.abs(w[own]) * np.sqrt(np.maximum(np.diag(gram)[own], 0.0))
+    if float(lean.max()) <= 1e-9 * np.sqrt(max(float(gram[a, a]), 0.0)):
+        return None
+    new = list(span)
+    new[own[int(np.argmax(lean))]] = a
+    T = np.linalg.lstsq(gram[np.ix_(new, new)], gram[np.ix_(new, span)], rcond=1e-12)[0]  # coef -> swapped coef
+    pos = new.index(a)
+    value = float(T[pos] @ coef)
+    return value, float(np.sqrt(max(float(T[pos] @ cov @ T[pos]), 0.0)))
 
 
 def _share_left(gram: np.ndarray, head: int, span: list[int]) -> float:
