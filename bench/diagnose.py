@@ -5,7 +5,9 @@
    `identify.diagnose.testbed` (its own MuJoCo stepping loop, PD control and multi-sine excitation, not
    `envs.simulate`) with one effect hidden in the plant or the sensor, diagnosed against the clean MJCF
    on a held-out record of another excitation: what is named first, its value against the truth, the
-   verdict and the validation torque RMS before and after.
+   verdict and the validation torque RMS before and after. `arm_effect_table` does the same on two Menagerie
+   arms of ../shared/robots/ (the UR5e and the Panda, driven by torque) over seeds 0-3, and counts how often
+   the stds cover the truth.
 2. **Real logs, leave one file out** (`lofo_table`): for each DFKI session (design C.0 and its rebuild C.1)
    every one of the shared files is held out in turn; the diagnosis is fitted on the other four and its
    calibrated MJCF is judged on the held-out file by inverse dynamics through MuJoCo
@@ -30,8 +32,8 @@
    also writes `<system>_calibrated_all.xml`, the diagnosis run on every record).
 
 Writes bench/diagnose.json and bench/diagnose.md. Re-run: `python -m bench diagnose`
-(`python -m bench.diagnose lofo` or `hidden` for one part). `python -m bench.diagnose lofo KEY=VALUE ...` runs the
-splits with Hydra overrides of the diagnosis (such as `diagnose.record_offsets=true`) and prints the summary
+(`python -m bench.diagnose lofo`, `hidden` or `arms` for one part). `python -m bench.diagnose lofo KEY=VALUE ...`
+runs the splits with Hydra overrides of the diagnosis (such as `diagnose.record_offsets=true`) and prints the summary
 only, writing nothing.
 """
 
@@ -64,6 +66,7 @@ from identify.diagnose.calibrate import mjcf_measured_torque
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parents[1] / "shared" / "data"
+ROBOTS = HERE.parents[1] / "shared" / "robots"
 JUDGE_HZ = 5.0  # zero-phase low-pass of the judged signals [Hz]
 RAMPS = (0.03, 0.1, 0.3)  # friction ramp widths the calibrated models are also judged with [rad/s]
 # session -> (data config, folder, the lab's models to beat: the best of them per joint)
@@ -411,12 +414,12 @@ def ramp_markdown(tables: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def main(parts: tuple[str, ...] = ("hidden", "lofo")) -> None:
-    """`parts`: `hidden` and/or `lofo`, and any `key=value` Hydra overrides of the diagnosis (conf/diagnose.yaml):
-    with overrides the leave-one-file-out splits are run and summarised on stdout, and no file is written (the
-    tables in bench/ stay those of the defaults)."""
+def main(parts: tuple[str, ...] = ("hidden", "arms", "lofo")) -> None:
+    """`parts`: `hidden`, `arms` and/or `lofo`, and any `key=value` Hydra overrides of the diagnosis
+    (conf/diagnose.yaml): with overrides the leave-one-file-out splits are run and summarised on stdout, and no
+    file is written (the tables in bench/ stay those of the defaults)."""
     overrides = tuple(p for p in parts if "=" in p)
-    if overrides and "hidden" in parts:
+    if overrides and ("hidden" in parts or "arms" in parts):
         raise SystemExit("overrides apply to the real-data splits only: run `python -m bench.diagnose lofo KEY=VALUE`")
     if overrides:
         if not SHARED.is_dir():
@@ -435,6 +438,14 @@ def main(parts: tuple[str, ...] = ("hidden", "lofo")) -> None:
 
         result["hidden"] = hidden_effect_table()
         result["several_records"] = several_records_table()
+    if "arms" in parts:
+        from identify.diagnose.testbed import arm_effect_table
+
+        if not ROBOTS.is_dir():
+            print(f"skipping the Menagerie arms' table: {ROBOTS} is absent")
+        else:
+            with tempfile.TemporaryDirectory() as tmp:
+                result["arms_hidden"] = arm_effect_table(ROBOTS, tmp)
     out_json.write_text(json.dumps(result, indent=1))
     md = ["# Discrepancy diagnosis", "", "Written by `python -m bench diagnose` (see bench/diagnose.py).", ""]
     if "hidden" in result:
@@ -452,6 +463,20 @@ def main(parts: tuple[str, ...] = ("hidden", "lofo")) -> None:
             "`unexplained_structure`.",
             "",
             several_markdown(result["several_records"]),
+            "",
+        ]
+    if "arms_hidden" in result:
+        from identify.diagnose.testbed import hidden_markdown
+
+        md += [
+            "## Hidden effects on Menagerie arms (independent generator)",
+            "",
+            "The UR5e and the Panda of ../shared/robots/, their position servos replaced by motors of the same force "
+            "limits (`identify.diagnose.testbed.torque_driven`), excited and measured by the testbed's own loop "
+            "(`ARMS`: PD tracking of a multi-sine about a pose clear of the limits, RK4) with one effect hidden; "
+            "the table is seed 0, the closing line counts seeds 0-3.",
+            "",
+            hidden_markdown(result["arms_hidden"]),
             "",
         ]
     for table in result.get("lofo", {}).values():
@@ -493,4 +518,4 @@ def main(parts: tuple[str, ...] = ("hidden", "lofo")) -> None:
 
 
 if __name__ == "__main__":
-    main(tuple(sys.argv[1:]) or ("hidden", "lofo"))
+    main(tuple(sys.argv[1:]) or ("hidden", "arms", "lofo"))
