@@ -5,7 +5,9 @@ At each step every remaining candidate is fitted together with the ones already 
 rows, by weighted least squares (per-joint weights 1/sigma_j^2 from the torque noise floor). A candidate is
 admissible when it lowers the BIC and its cross-validation (each training record held out in turn, or
 contiguous time blocks of a single record) lowers the held-out weighted torque MSE by at least `min_gain`
-(`min_gain_records` when records are held out) of the current one, and when the chosen ones do not
+(`min_gain_records` when records are held out) of the current one on the joints it acts on (the share asked
+of the whole MSE is `min_gain` times those joints' share of the residual left: on a 6-joint arm a wrist's
+armature can lower the whole by at most a sixth of what it removes there), and when the chosen ones do not
 already explain most of its column, and when it lowers the held-out error in most folds (a gain on
 average that one fold carries is not a gain that generalises). Where three or more records are held out in
 turn and the candidate lowers the held-out error of every one of them by `min_gain_records`, that is the
@@ -73,7 +75,8 @@ class SelectionOptions:
 
     Attributes:
         min_gain: smallest relative drop of the held-out weighted torque MSE that counts, when the held-out
-            data are time blocks of a single record.
+            data are time blocks of a single record: of the MSE on the joints the candidate acts on (asked of the
+            whole MSE in proportion to those joints' share of the residual).
         min_gain_records: the same when whole records are held out in turn: a gain that holds on recordings
             the fit never saw is stronger evidence than one on another stretch of the same recording, so
             a smaller one counts.
@@ -399,14 +402,22 @@ def select_effects(
         rss, held, e = float(b @ b), np.array([_mean_square(b[folds == f]) for f in range(n_folds)]), b
     n_eff = n_obs / correlation_time(e.reshape(n, nv), row_record)
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
+    energy = np.sum(e.reshape(n, nv) ** 2, axis=0)  # (nv,) the residual left on each joint
+    touched = {c.key: np.any(built[c.key] != 0, axis=(0, 2)) for c in pool}  # the joints a candidate acts on
     Scored = tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]
 
-    def fold_gains(held_c: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    def gain_asked(cand: Candidate) -> float:
+        """`min_gain` of the residual on the joints the candidate acts on, as a share of the whole: an effect on
+        one joint of a 7-joint arm can only lower the MSE of all joints by that joint's share of it."""
+        share = float(energy[touched[cand.key]].sum() / max(float(energy.sum()), 1e-300))
+        return min_gain * min(max(share, 0.0), 1.0)
+
+    def fold_gains(held_c: np.ndarray, asked: float) -> tuple[np.ndarray, np.ndarray, bool]:
         """((folds,) relative drop of the held-out MSE against the current one (NaN for a fold with no value,
-        `_scores`), the finite ones, whether 3+ records held out in turn each gain `min_gain`)."""
+        `_scores`), the finite ones, whether 3+ records held out in turn each gain `asked`)."""
         gains = 1.0 - held_c / np.maximum(held, 1e-300)
         judged = gains[np.isfinite(gains)]
-        return gains, judged, kind == "files" and len(judged) >= 3 and bool(np.all(judged >= min_gain))
+        return gains, judged, kind == "files" and len(judged) >= 3 and bool(np.all(judged >= asked))
 
     def admissible_among(cands: list[Candidate], shape_mse: float | None = None) -> tuple[Scored | None, list[Scored]]:
         """(the admissible candidate of lowest BIC or None, every admissible one) among `cands`, given the
@@ -450,10 +461,11 @@ def select_effects(
                     continue  # on these data it is a constant torque: the joints' constants do as well
             held_nominal = tuple(cand.parameter_names[c] for c in dropped)
             bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
-            _, judged, unanimous = fold_gains(held_c)
+            asked = gain_asked(cand)
+            _, judged, unanimous = fold_gains(held_c, asked)
             bic_asked = -options.bic_margin if not unanimous else (np.inf if shape_mse is not None else 0.0)
             against = cv if shape_mse is None else min(cv, shape_mse)
-            if cv_c > (1 - min_gain) * against or bic_c - bic > bic_asked:
+            if cv_c > (1 - asked) * against or bic_c - bic > bic_asked:
                 continue
             if np.count_nonzero(judged > 0) * 2 <= len(judged):
                 continue  # it must lower the held-out error in most folds, not on average only
@@ -503,7 +515,7 @@ def select_effects(
         value, std = cand.value(fit.coef[sl], fit.cov[sl, sl], X_new[:, :, sl])
         too_short = cand.effect == "time_delay" and abs(value) < options.min_delay_samples * dt
         headline_at_bound = bool(fit.bound_flags()[sl][0] != 0)
-        gains, _, unanimous = fold_gains(held_c)
+        gains, _, unanimous = fold_gains(held_c, gain_asked(cand))
         min_z = options.min_z_records if unanimous else options.min_z
         # at a bound the std is not defined: significant unless the bound is the value of no effect (a payload
         # pinned at zero mass, whose other columns fit what no payload can be)
@@ -518,4 +530,5 @@ def select_effects(
         X, lo, hi = X_new, lo_new, hi_new
         q, _ = np.linalg.qr(_flat(X, sw))
         basis, bic, rss, held = q, bic_c, rss_c, held_c
+        energy = np.sum((b - _flat(X, sw) @ fit.coef).reshape(n, nv) ** 2, axis=0)
     return chosen, X
