@@ -498,6 +498,11 @@ def _stiffness_value(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[
     return 1.0 / c, sd / c**2
 
 
+def _scanned_harmonics(q: np.ndarray) -> np.ndarray:
+    """The harmonics of `COGGING_HARMONICS` whose period the motion q (N,) spans `MIN_COGGING_PERIODS` times."""
+    return COGGING_HARMONICS[COGGING_HARMONICS * np.ptp(q) >= 2 * np.pi * MIN_COGGING_PERIODS]
+
+
 def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, float] | None:
     """The position-periodic torque a sin(n q_j) + b cos(n q_j) that best explains `r` (N,): (harmonic n
     [cycles per revolution], amplitude [N m], the share of r's energy the fit explains), or None where
@@ -508,7 +513,7 @@ def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, 
     offset or a spring are, and it would extrapolate as a sinusoid to angles the data never reached), each
     fitted in the analysis band with a constant; the n explaining the most variance wins.
     """
-    shown = COGGING_HARMONICS[COGGING_HARMONICS * np.ptp(s.q[:, j]) >= 2 * np.pi * MIN_COGGING_PERIODS]
+    shown = _scanned_harmonics(s.q[:, j])
     if not shown.size:
         return None
     total = float(np.sum(r**2))
@@ -524,9 +529,15 @@ def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, 
 
 def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
     """The position-periodic torque that best explains joint j's training residual (`position_harmonic`):
-    (harmonic n [cycles per revolution], amplitude), or None where the joint's motion spans no period."""
+    (harmonic n [cycles per revolution], amplitude), or None where the joint's motion spans no period, or where
+    the best is the longest period the scan allows (of several): the scan cut it there, the torque's period may
+    be longer than the motion shows, and a candidate at the cut would name a wrong period with a biased amplitude
+    (a UR5e wrist's 6-cycle cogging over 0.85 rad of motion came out as n = 7.5 at 0.21 N m for 0.3)."""
     found = position_harmonic(s, j, s.residual[:, j])
-    return None if found is None else (found[0], found[1])
+    if found is None:
+        return None
+    shown = _scanned_harmonics(s.q[:, j])
+    return None if shown.size > 1 and found[0] == shown[0] else (found[0], found[1])
 
 
 def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:
