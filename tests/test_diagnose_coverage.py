@@ -238,16 +238,20 @@ def test_the_wheel_angle_changes_no_torque_and_the_pendulum_angle_does() -> None
 
 
 def test_an_absorbed_column_takes_the_value_the_fit_gives_it_when_swapped_in() -> None:
-    """Columns u, v fitted as 2 u + 3 v, and a = u + v (absorbed: in their span). Swapped in for the column it
-    leans on most (v, the larger), the same torque is 3 a - 1 u: a takes 3, with the std of c_v (the covariance
-    carried through the same linear map), whatever the other columns of the fit."""
+    """Columns w, u, v fitted as 0.5 w + 2 u + 3 v, and a = 3 w + u + v (absorbed: in their span). The finding is
+    (u, v); a leans most on w, outside it, so the swap takes the finding's column it leans on most, v (the larger
+    column): the same torque is -8.5 w - u + 3 a, so a takes 3, with the std of v's coefficient (the covariance,
+    a full one, carried through the same linear map)."""
     rng = np.random.default_rng(0)
     u, v, w = rng.normal(size=200), 2.0 * rng.normal(size=200), rng.normal(size=200)
-    a = u + v
+    a = 3.0 * w + u + v
     M = np.column_stack([w, u, v, a])
     gram = M.T @ M
     coef = np.array([0.5, 2.0, 3.0])
-    cov = np.diag([0.01, 0.04, 0.09])
+    L = np.array([[0.1, 0.0, 0.0], [0.05, 0.2, 0.0], [0.02, 0.1, 0.3]])
+    cov = L @ L.T  # a full covariance
     value, std = _absorbed_value(gram, coef, cov, [1, 2], 3, 3)
-    assert value == pytest.approx(3.0, abs=1e-9) and std == pytest.approx(0.3, abs=1e-9)
-    assert _absorbed_value(gram, coef, cov, [0], 3, 3) is None  # w carries none of a
+    T = np.array([0.0, 0.0, 1.0])  # c_a is the coefficient of v
+    assert value == pytest.approx(3.0, abs=1e-9) and std == pytest.approx(float(np.sqrt(T @ cov @ T)), abs=1e-9)
+    assert _absorbed_value(gram, coef, cov, [0], 3, 3) is not None  # w alone: a leans on it too
+    assert _absorbed_value(np.eye(4), coef, cov, [1, 2], 3, 3) is None  # orthogonal: a leans on none of them

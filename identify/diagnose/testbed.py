@@ -170,27 +170,47 @@ def arm_cases(arm: str) -> list[list[Injected]]:
 
 def torque_driven(mjcf: str | Path, folder: str | Path) -> Path:
     """A copy of `mjcf` whose every actuator is a motor (unit gain, no bias) limited to the force its original
-    could apply (its `forcerange`, else its `ctrlrange`), written into `folder` as `<stem>_motors.xml`.
+    could apply, written into `folder` as `<stem>_motors.xml` (mesh and texture folders made absolute).
 
     The testbed drives its joints by torque; Menagerie arms carry position servos, which would pull towards their
-    set-points on top of it."""
+    set-points on top of it. The limit is the actuator's `forcerange`; a plain motor without one keeps its
+    control range times its gain.
+
+    Raises:
+        ValueError: no actuator, an actuator that does not drive one joint with gear 1 (the testbed logs the
+            control as the joint's torque), or a servo without a `forcerange` (the force it could apply is
+            unknown).
+    """
     spec = mujoco.MjSpec.from_file(str(mjcf))
     compiled = spec.compile()
+    if compiled.nu == 0:
+        raise ValueError(f"{mjcf}: no actuator; the testbed drives the joints through them")
     for a, act in enumerate(spec.actuators):
-        lo, hi = (
-            compiled.actuator_forcerange[a] if compiled.actuator_forcelimited[a] else compiled.actuator_ctrlrange[a]
+        name = act.name or f"#{a}"
+        if compiled.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or not np.allclose(
+            compiled.actuator_gear[a], [1, 0, 0, 0, 0, 0]
+        ):
+            raise ValueError(
+                f"{mjcf}: actuator {name} does not drive one joint with gear 1; the testbed cannot drive it"
+            )
+        plain = (
+            compiled.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+            and compiled.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_NONE
+            and compiled.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE
         )
-        if not hi > lo:
-            raise ValueError(f"{mjcf}: actuator {a} has no force or control range to limit its motor by")
-        act.gaintype, act.biastype, act.dyntype = (
-            mujoco.mjtGain.mjGAIN_FIXED,
-            mujoco.mjtBias.mjBIAS_NONE,
-            mujoco.mjtDyn.mjDYN_NONE,
-        )
-        act.gainprm[:], act.biasprm[:], act.dynprm[:] = 0.0, 0.0, 0.0
-        act.gainprm[0] = 1.0
-        act.ctrlrange, act.forcerange = [float(lo), float(hi)], [float(lo), float(hi)]
+        if compiled.actuator_forcelimited[a]:
+            lo, hi = (float(v) for v in compiled.actuator_forcerange[a])
+        elif plain and compiled.actuator_ctrllimited[a]:
+            lo, hi = sorted(float(v) * float(compiled.actuator_gainprm[a, 0]) for v in compiled.actuator_ctrlrange[a])
+        else:
+            raise ValueError(
+                f"{mjcf}: actuator {name} has no forcerange, so the force it could apply is unknown; give it one"
+            )
+        act.set_to_motor()
+        act.ctrlrange, act.forcerange = [lo, hi], [lo, hi]
         act.ctrllimited = act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    base = Path(mjcf).resolve().parent
+    spec.meshdir, spec.texturedir = str(base / spec.meshdir), str(base / spec.texturedir)
     out = Path(folder) / f"{Path(mjcf).stem}_motors.xml"
     out.write_text(spec.to_xml())
     return out
@@ -283,8 +303,15 @@ def rollout(
     Returns:
         (the nominal plant, the measured record: time, q, tau, with the tau_lead_s of its held torque).
     """
+    if settings is None and system not in SYSTEMS:
+        raise ValueError(
+            f"unknown testbed system {system!r}; valid choices: {', '.join(SYSTEMS)} (or pass settings=, as ARMS has)"
+        )
     plant = load_plant(mjcf if mjcf is not None else system)
     cfg = settings if settings is not None else SYSTEMS[system]
+    sizes = {k: len(v) for k, v in vars(cfg).items() if isinstance(v, tuple) and (v or k != "center")}
+    if any(n != plant.nv for n in sizes.values()):
+        raise ValueError(f"testbed settings for {system}: {sizes} values per field, the model has {plant.nv} joints")
     m = _hidden_model(plant, effects)
     if cfg.rk4:
         m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
@@ -528,6 +555,7 @@ def arm_effect_table(robots: str | Path, folder: str | Path, seeds: range = rang
             truth = effects[0] if effects else None
             row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth) for _, dg in runs] if truth else []
             row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
+            row["seeds"] = list(seeds)
             rows.append(row)
     return rows
 
@@ -605,10 +633,11 @@ def hidden_markdown(rows: list[dict[str, Any]]) -> str:
     seeds = [r for r in rows if "ok_seeds" in r]
     if seeds:
         every = [z for r in seeds for z in r["z_seeds"] if z is not None]
+        used = seeds[0].get("seeds") or list(range(len(seeds[0]["ok_seeds"])))
         named = sum(len(r["ok_seeds"]) for r in seeds)
         lines += [
             "",
-            f"Over seeds 0-{len(seeds[0]['ok_seeds']) - 1}: {sum(sum(r['ok_seeds']) for r in seeds)} of {named} "
+            f"Over seeds {used[0]}-{used[-1]}: {sum(sum(r['ok_seeds']) for r in seeds)} of {named} "
             f"diagnoses as expected; of the {len(every)} values where the hidden effect is named first, "
             f"{sum(abs(z) <= 1 for z in every)} lie within 1 std of the truth and {sum(abs(z) <= 2 for z in every)} "
             "within 2 (68 % and 95 % if the stds are honest).",
