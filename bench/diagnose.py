@@ -53,6 +53,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from scipy import signal
 
+from bench._coverage import SHARED_ROBOTS as ROBOTS
 from dynamics.friction import friction_solver
 from dynamics.plant import load_plant
 from envs.dataset import Dataset
@@ -66,7 +67,6 @@ from identify.diagnose.calibrate import mjcf_measured_torque
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parents[1] / "shared" / "data"
-ROBOTS = HERE.parents[1] / "shared" / "robots"
 JUDGE_HZ = 5.0  # zero-phase low-pass of the judged signals [Hz]
 RAMPS = (0.03, 0.1, 0.3)  # friction ramp widths the calibrated models are also judged with [rad/s]
 # session -> (data config, folder, the lab's models to beat: the best of them per joint)
@@ -414,7 +414,10 @@ def ramp_markdown(tables: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def main(parts: tuple[str, ...] = ("hidden", "arms", "lofo")) -> None:
+PARTS = ("hidden", "arms", "lofo")  # what `python -m bench diagnose` runs
+
+
+def main(parts: tuple[str, ...] = PARTS) -> None:
     """`parts`: `hidden`, `arms` and/or `lofo`, and any `key=value` Hydra overrides of the diagnosis
     (conf/diagnose.yaml): with overrides the leave-one-file-out splits are run and summarised on stdout, and no
     file is written (the tables in bench/ stay those of the defaults)."""
@@ -518,4 +521,4 @@ def main(parts: tuple[str, ...] = ("hidden", "arms", "lofo")) -> None:
 
 
 if __name__ == "__main__":
-    main(tuple(sys.argv[1:]) or ("hidden", "arms", "lofo"))
+    main(tuple(sys.argv[1:]) or PARTS)

@@ -11,6 +11,7 @@ from omegaconf import DictConfig
 from harness.setup import CONF_DIR
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_ROBOTS = SHARED_DATA.parent / "robots"  # Menagerie arms without meshes
 
 
 def compose_config(

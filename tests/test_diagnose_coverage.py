@@ -250,8 +250,8 @@ def test_an_absorbed_column_takes_the_value_the_fit_gives_it_when_swapped_in() -
     coef = np.array([0.5, 2.0, 3.0])
     L = np.array([[0.1, 0.0, 0.0], [0.05, 0.2, 0.0], [0.02, 0.1, 0.3]])
     cov = L @ L.T  # a full covariance
-    value, std = _absorbed_value(gram, coef, cov, [1, 2], 3, 3)
+    value, std = _absorbed_value(gram, coef, cov, [1, 2], 3)
     T = np.array([0.0, 0.0, 1.0])  # c_a is the coefficient of v
     assert value == pytest.approx(3.0, abs=1e-9) and std == pytest.approx(float(np.sqrt(T @ cov @ T)), abs=1e-9)
-    assert _absorbed_value(gram, coef, cov, [0], 3, 3) is not None  # w alone: a leans on it too
-    assert _absorbed_value(np.eye(4), coef, cov, [1, 2], 3, 3) is None  # orthogonal: a leans on none of them
+    assert _absorbed_value(gram, coef, cov, [0], 3) is not None  # w alone: a leans on it too
+    assert _absorbed_value(np.eye(4), coef, cov, [1, 2], 3) is None  # orthogonal: a leans on none of them

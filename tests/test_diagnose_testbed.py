@@ -31,8 +31,7 @@ from identify.diagnose.testbed import (
     rollout,
     torque_driven,
 )
-
-ROBOTS = Path(__file__).resolve().parents[2] / "shared" / "robots"
+from tests.conftest import SHARED_ROBOTS
 
 
 def _names(dg: Diagnosis, i: int = 0) -> set[tuple[str, str]]:
@@ -371,7 +370,7 @@ def test_the_hidden_effect_table_judges_the_value_against_its_std() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not (ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
+@pytest.mark.skipif(not (SHARED_ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
 @pytest.mark.parametrize("arm", list(ARMS))
 def test_hidden_effects_on_a_menagerie_arm_are_named_within_their_std(arm: str, tmp_path: Path) -> None:
     """A 6- and a 7-joint arm of Menagerie, its servos turned into motors of the same limits, under the testbed's
@@ -379,8 +378,9 @@ def test_hidden_effects_on_a_menagerie_arm_are_named_within_their_std(arm: str, 
     3 std and 10 % of the truth where it is the first finding itself (seed 0; bench/diagnose.md counts the coverage
     over four seeds). A small armature at the last wrist joint may come first as its torque gain, with the armature
     named beside it: that joint's torque is nearly all inertia."""
-    path = torque_driven(ROBOTS / f"{arm}.xml", tmp_path)
-    model, original = mujoco.MjModel.from_xml_path(str(path)), mujoco.MjModel.from_xml_path(str(ROBOTS / f"{arm}.xml"))
+    source = SHARED_ROBOTS / f"{arm}.xml"
+    path = torque_driven(source, tmp_path)
+    model, original = mujoco.MjModel.from_xml_path(str(path)), mujoco.MjModel.from_xml_path(str(source))
     assert np.all(model.actuator_biastype == mujoco.mjtBias.mjBIAS_NONE) and np.all(model.actuator_gainprm[:, 0] == 1)
     assert np.array_equal(model.actuator_forcerange, original.actuator_forcerange)
     assert np.array_equal(model.actuator_ctrlrange, original.actuator_forcerange)
@@ -405,14 +405,14 @@ def test_hidden_effects_on_a_menagerie_arm_are_named_within_their_std(arm: str, 
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not (ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
+@pytest.mark.skipif(not (SHARED_ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
 def test_a_cogging_period_longer_than_the_motion_is_not_named_at_the_scans_edge(tmp_path: Path) -> None:
     """The UR5e's wrist 2 moves over 0.85 rad: a 6-cycle cogging (period 1.05 rad) is longer than the motion,
     which the harmonic scan does not try (under one period). The best harmonic it may try, its longest period
     (n = 7.5), explained 90 % of the residual where the true one explains 95 %, and was named at 0.21 N m for
     0.3. Now no cogging is named there, the verdict keeps the structure; a 12-cycle cogging on the same joint is
     named at its period and size."""
-    path = torque_driven(ROBOTS / "ur5e.xml", tmp_path)
+    path = torque_driven(SHARED_ROBOTS / "ur5e.xml", tmp_path)
     _, dg = diagnose_case("ur5e", [Injected("cogging", "wrist_2_joint", 0.3, 6.0)], mjcf=path, settings=ARMS["ur5e"])
     assert dg.verdict == "unexplained_structure" and not any(f.effect == "cogging" for f in dg.findings), dg.findings
     _, dg = diagnose_case("ur5e", [Injected("cogging", "wrist_2_joint", 0.3, 12.0)], mjcf=path, settings=ARMS["ur5e"])

@@ -611,19 +611,7 @@ def diagnose(
         periodic=np.asarray(plant.stiffness) == 0,  # a joint spring's torque does not repeat every turn
         position_matters=_position_matters(s_tr),
     )
-    findings = _with_confounding(
-        findings,
-        steps,
-        pool,
-        s_tr,
-        weights,
-        X,
-        m,
-        selection.confound_independence,
-        fit,
-        z_floor,
-        selection.min_independence,
-    )
+    findings = _with_confounding(findings, steps, pool, s_tr, weights, X, m, fit, selection, z_floor)
     # the selection names an effect only off its value of no effect; refitted with the effects chosen after it,
     # one can still end there (pinned at its bound): it then adds nothing to the model and is not named
     pinned = _pinned_at_null(findings, [st.candidate.null for st in steps])
@@ -910,20 +898,20 @@ def _with_confounding(
     weights: np.ndarray,
     X: np.ndarray,
     n_nuisance: int,
-    threshold: float,
     fit: LinearFit,
+    selection: SelectionOptions,
     min_z: float,
-    nothing_new: float,
 ) -> list[Finding]:
     """Name, with each finding, the candidates not chosen that these data cannot tell from it.
 
     A finding's headline column (weighted, in the band) is confounded with an alternative when the
-    alternative's columns, together with the other findings' columns, leave less than `threshold` of its
-    norm unexplained, while the other findings alone leave more (it is the alternative that explains it).
+    alternative's columns, together with the other findings' columns, leave less than `confound_independence`
+    (of `selection`) of its norm unexplained, while the other findings alone leave more (it is the alternative
+    that explains it; `_explains`).
 
     The other way round, a payload's inertia can absorb an inertial effect of a joint (`ABSORBED`): the
-    alternative's headline column lies (to within `nothing_new`, the selection's `min_independence`) in the
-    span of the chosen columns, and only with the payload's columns among them (a payload's inertia about a
+    alternative's headline column lies (to within the selection's `min_independence`) in the span of the
+    chosen columns, and only with the payload's columns among them (a payload's inertia about a
     vertical axis holds that joint's armature). The alternative was then never chosen (nothing new). It is
     named with the finding where the fit carries evidence of it (`_absorbed_value`): swapped in for the
     payload's column it leans on most, the same fitted torque gives it a value inside its physical range,
@@ -958,17 +946,16 @@ def _with_confounding(
             if c.effect == st.candidate.effect and c.target == st.candidate.target:
                 continue
             share = _share_left(gram, head, others + list(range(offsets[k], offsets[k + 1])))
-            if share < threshold < alone or (share < threshold and alone >= 1.5 * share):
+            if _explains(share, alone, selection.confound_independence):
                 alts.append({"effect": c.effect, "target": c.target, "independence": share})
                 continue
-            a, own = offsets[k], list(range(int(start[i]), int(start[i + 1])))
             if (st.candidate.effect, c.effect) not in ABSORBED:
                 continue
+            a = offsets[k]
             absorbed = _share_left(gram, a, list(range(X.shape[2])))
-            without = _share_left(gram, a, others)
-            if not (absorbed < nothing_new <= without or (absorbed < nothing_new and without >= 1.5 * absorbed)):
+            if not _explains(absorbed, _share_left(gram, a, others), selection.min_independence):
                 continue  # not the selection's "nothing new" (`min_independence`): it was scored and not chosen
-            swapped = _absorbed_value(gram, fit.coef, fit.cov, own, X.shape[2], a)
+            swapped = _absorbed_value(gram, fit.coef, fit.cov, list(range(int(start[i]), int(start[i + 1]))), a)
             if swapped is None:
                 continue
             value, std = swapped
@@ -997,30 +984,34 @@ def _with_confounding(
     return out
 
 
+def _explains(share: float, alone: float, threshold: float) -> bool:
+    """Whether a column that other columns leave `share` of (in norm) is explained by the one added to them:
+    under `threshold` with it, and over `threshold` (or half as much again) without it, where `alone` is left."""
+    return share < threshold < alone or (share < threshold and alone >= 1.5 * share)
+
+
 def _absorbed_value(
-    gram: np.ndarray, coef: np.ndarray, cov: np.ndarray, own: list[int], n: int, a: int
+    gram: np.ndarray, coef: np.ndarray, cov: np.ndarray, own: list[int], a: int
 ) -> tuple[float, float] | None:
     """(coefficient, std) column `a` takes when it replaces the finding's column it leans on most, the fitted
     torque unchanged; None where it leans on none of them.
 
     Args:
-        gram: Gram matrix of the weighted columns: the fit's `n` first, the alternatives' after.
+        gram: Gram matrix of the weighted columns: the fit's first (as many as `coef`), the alternatives' after.
         coef, cov: (n,) the fit's coefficients and their covariance.
-        own: the finding's columns (indices below `n`).
-        n: number of the fit's columns.
+        own: the finding's columns (indices below n).
         a: the alternative's headline column.
     """
-    span = list(range(n))
+    span = list(range(len(coef)))
     w = np.linalg.lstsq(gram[np.ix_(span, span)], gram[span, a], rcond=1e-12)[0]
     lean = np.abs(w[own]) * np.sqrt(np.maximum(np.diag(gram)[own], 0.0))
     if float(lean.max()) <= 1e-9 * np.sqrt(max(float(gram[a, a]), 0.0)):
         return None
+    k = own[int(np.argmax(lean))]
     new = list(span)
-    new[own[int(np.argmax(lean))]] = a
+    new[k] = a
     T = np.linalg.lstsq(gram[np.ix_(new, new)], gram[np.ix_(new, span)], rcond=1e-12)[0]  # coef -> swapped coef
-    pos = new.index(a)
-    value = float(T[pos] @ coef)
-    return value, float(np.sqrt(max(float(T[pos] @ cov @ T[pos]), 0.0)))
+    return float(T[k] @ coef), float(np.sqrt(max(float(T[k] @ cov @ T[k]), 0.0)))
 
 
 def _share_left(gram: np.ndarray, head: int, span: list[int]) -> float:

@@ -409,8 +409,7 @@ def select_effects(
     def gain_asked(cand: Candidate) -> float:
         """`min_gain` of the residual on the joints the candidate acts on, as a share of the whole: an effect on
         one joint of a 7-joint arm can only lower the MSE of all joints by that joint's share of it."""
-        share = float(energy[touched[cand.key]].sum() / max(float(energy.sum()), 1e-300))
-        return min_gain * min(max(share, 0.0), 1.0)
+        return min_gain * float(energy[touched[cand.key]].sum() / max(float(energy.sum()), 1e-300))
 
     def fold_gains(held_c: np.ndarray, asked: float) -> tuple[np.ndarray, np.ndarray, bool]:
         """((folds,) relative drop of the held-out MSE against the current one (NaN for a fold with no value,
@@ -528,7 +527,7 @@ def select_effects(
         if cand.effect in FRICTIONLOSS_EFFECTS:  # the friction law of the literature: Fc sign(dq) + Fv dq
             follow = [c for c in pool if c.effect == "viscous_friction" and c.target == cand.target]
         X, lo, hi = X_new, lo_new, hi_new
-        q, _ = np.linalg.qr(_flat(X, sw))
-        basis, bic, rss, held = q, bic_c, rss_c, held_c
-        energy = np.sum((b - _flat(X, sw) @ fit.coef).reshape(n, nv) ** 2, axis=0)
+        flat = _flat(X, sw)
+        basis, bic, rss, held = np.linalg.qr(flat)[0], bic_c, rss_c, held_c
+        energy = np.sum((b - flat @ fit.coef).reshape(n, nv) ** 2, axis=0)
     return chosen, X

@@ -553,7 +553,7 @@ def arm_effect_table(robots: str | Path, folder: str | Path, seeds: range = rang
             runs = [diagnose_case(arm, effects, seed, mjcf=path, settings=settings) for seed in seeds]
             row = _row(arm, effects, "named" if effects else "clean", *runs[0])
             truth = effects[0] if effects else None
-            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth) for _, dg in runs] if truth else []
+            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth) for _, dg in runs]
             row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
             row["seeds"] = list(seeds)
             rows.append(row)
@@ -633,7 +633,7 @@ def hidden_markdown(rows: list[dict[str, Any]]) -> str:
     seeds = [r for r in rows if "ok_seeds" in r]
     if seeds:
         every = [z for r in seeds for z in r["z_seeds"] if z is not None]
-        used = seeds[0].get("seeds") or list(range(len(seeds[0]["ok_seeds"])))
+        used = seeds[0]["seeds"]
         named = sum(len(r["ok_seeds"]) for r in seeds)
         lines += [
             "",
