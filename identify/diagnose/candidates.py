@@ -126,8 +126,11 @@ class Signals:
         return self.in_band(self.tau - self.tau_nominal)
 
     def in_band(self, x: np.ndarray) -> np.ndarray:
-        """(N, nv, ...) -> the same as every fit sees it: low-passed at `band_hz` (`smooth`), 0 where not `used`."""
-        return self.zero_unused(self.smooth(x))
+        """(N, nv, ...) -> the same as every fit sees it: 0 where not `used`, then low-passed at `band_hz`
+        (`smooth`), then 0 there again. Zeroing before the filter keeps tau = Y theta exact through it on every
+        row (0 = 0 theta where a torque is left out) and keeps what was left out from leaking into the rows beside
+        it (a joint held by friction: a torque anywhere within its breakaway, which the filter would spread)."""
+        return self.zero_unused(self.smooth(self.zero_unused(x)))
 
     def zero_unused(self, x: np.ndarray) -> np.ndarray:
         """(N, nv, ...) -> the same with the (row, joint) values that are not `used` set to 0."""
