@@ -160,12 +160,13 @@ def read_measured(
     _check_time(t, sources["time"], labels["time"], src)
     names = plant.joint_names
     del values
+    start = _startup_rows(t)
+    _check_gaps(t[start:], np.arange(start, len(t)), labels["time"], src)  # first: a gap reads as a wrong scale below
     _check_angle_units(plant, t, arrays, labels, src)
     _check_torque_units(plant, arrays, labels, sources, src)
 
     rows = np.arange(len(t))
     repairs: list[Repair] = []
-    start = _startup_rows(t)
     if start:
         steps = np.diff(t[: start + 1]) * 1e3
         repairs.append(
@@ -1133,6 +1134,26 @@ def _torque_spikes(
     ]
 
 
+def _where(rows: np.ndarray, k: int) -> str:
+    """The file position of the sample after step k."""
+    return f"row {rows[k + 1]} (line {rows[k + 1] + 2})"
+
+
+def _check_gaps(t: np.ndarray, rows: np.ndarray, label: str, src: str) -> None:
+    """Refuse a gap in the sampling longer than `_MAX_GAP_STEPS` median steps (nothing can be interpolated across
+    it); `rows`: the file row of each sample."""
+    steps = np.diff(t)
+    h = float(np.median(steps))
+    gaps = np.flatnonzero(steps > _MAX_GAP_STEPS * h)
+    if gaps.size:
+        k = int(gaps[0])
+        raise DataError(
+            f"{src}: {label} has a gap of {steps[k] * 1e3:.4g} ms before {_where(rows, k)} ({steps[k] / h:.1f} times "
+            f"the median step of {h * 1e3:.4g} ms; {gaps.size} such gap(s)): too long to interpolate across. Split "
+            "the file there"
+        )
+
+
 def _regularise(
     t: np.ndarray, arrays: dict[str, np.ndarray | None], rows: np.ndarray, *, resample: bool, label: str, src: str
 ) -> tuple[np.ndarray, dict[str, np.ndarray | None], Repair | None]:
@@ -1144,21 +1165,10 @@ def _regularise(
         return t, arrays, None
     worst = int(np.argmax(dev))
     irregular = int(np.sum(dev > _REGULAR_TOL))
-
-    def where(k: int) -> str:
-        return f"row {rows[k + 1]} (line {rows[k + 1] + 2})"
-
-    gaps = np.flatnonzero(steps > _MAX_GAP_STEPS * h)
-    if gaps.size:
-        k = int(gaps[0])
-        raise DataError(
-            f"{src}: {label} has a gap of {steps[k] * 1e3:.4g} ms before {where(k)} ({steps[k] / h:.1f} times the "
-            f"median step of {h * 1e3:.4g} ms; {gaps.size} such gap(s)): too long to interpolate across. Split the "
-            "file there"
-        )
+    _check_gaps(t, rows, label, src)
     summary = (
         f"{irregular} of {len(steps)} steps differ from the median {h * 1e3:.4g} ms by more than "
-        f"{_REGULAR_TOL:.0%} (the largest, {steps[worst] * 1e3:.4g} ms, before {where(worst)})"
+        f"{_REGULAR_TOL:.0%} (the largest, {steps[worst] * 1e3:.4g} ms, before {_where(rows, worst)})"
     )
     if not resample:
         raise DataError(f"{src}: {label} is irregularly sampled: {summary}. Pass resample=True to interpolate it")

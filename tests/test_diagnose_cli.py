@@ -192,6 +192,9 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("diagnose.derivatives=spectral", r"unknown diagnose\.derivatives 'spectral'; valid choices: butterworth"),
         ("diagnose.window_s=0.001", r"diagnose\.window_s=0\.001 s is shorter than 5 samples of .*train\.csv"),
         ("data.columns=5", r"data\.columns must map the harness's names to the file's columns .* got 5"),
+        ("++data.band_hz=abc", r"data\.band_hz must be a number, got 'abc'"),
+        ("++data.band_hz=0", r"data\.band_hz must be > 0"),
+        ("++data.band_hz=[1,2]", r"data\.band_hz must be a number, got \[1, 2\]"),
     ],
 )
 def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(

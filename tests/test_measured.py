@@ -248,6 +248,21 @@ def test_a_gap_too_long_to_interpolate_is_refused(tmp_path: Path, plant: Plant) 
         read_measured(write(tmp_path / "gap.csv", cols), plant)
 
 
+@pytest.mark.parametrize("shift_s", [0.5, 5.0])
+def test_a_gap_is_named_before_the_angle_units_are_judged(tmp_path: Path, plant: Plant, shift_s: float) -> None:
+    """Rows missing (the motion jumps across the gap) or the clock jumping: the angles then change by a different
+    amount than the velocity's time integral, which the unit check would read as a wrong scale of q or dq; the gap
+    is the cause and is named first."""
+    cut = table(2000)
+    cut = {k: np.delete(v, np.s_[800:1050], axis=0) for k, v in cut.items()}  # 250 rows deleted
+    with pytest.raises(DataError, match=r"gap of 502 ms before row 800 \(line 802\).*Split the file there"):
+        read_measured(write(tmp_path / "deleted.csv", cut), plant)
+    shifted = table(2000)
+    shifted["time"][1000:] += shift_s
+    with pytest.raises(DataError, match=r"column 'time' has a gap of .* before row 1000 .*Split the file there"):
+        read_measured(write(tmp_path / "shifted.csv", shifted), plant)
+
+
 def test_angles_in_degrees_are_refused(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     cols["q_elbow"] = np.degrees(cols["q_elbow"])
