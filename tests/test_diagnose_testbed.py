@@ -261,6 +261,21 @@ def test_a_large_joint_offset_is_not_mistaken_for_changing_torque_zeros() -> Non
     assert ("joint_offset", "shoulder") in _names(dg)
 
 
+def test_a_finding_that_another_finding_explains_is_named_with_it() -> None:
+    """On the planar arm a shoulder offset only turns the first moments (the shoulder's angle enters gravity alone),
+    which the rigid-body columns hold: the two cannot be told apart on any motion. Chosen one after the other, the
+    offset's column is left 2.9 % of its norm beside the rigid-body change (all of it without); the finding names both
+    and says that only a reference pose separates them (it had been named alone)."""
+    dg = _several_records(
+        "two_link", [[Injected("joint_offset", "shoulder", 0.15)]] * 3, [Injected("joint_offset", "shoulder", 0.15)]
+    )
+    first = dg.findings[0]
+    assert (first.effect, first.target) == ("joint_offset", "shoulder")
+    assert any(f.effect == "rigid_body" for f in dg.findings[1:])  # chosen too, not an alternative left out
+    assert ("rigid_body", "") in {(c["effect"], c["target"]) for c in first.confounded_with}, first.confounded_with
+    assert "reference pose" in first.separate_by
+
+
 def test_every_case_of_the_several_records_table_is_ok() -> None:
     """The README's several-records table (`python -m bench diagnose`): every row as expected."""
     from identify.diagnose.testbed import several_records_table
@@ -350,14 +365,77 @@ def test_the_comparison_band_is_never_above_the_state_filters_cut_off() -> None:
     assert analysis_band(7.0, [a], "simulator", {}) == pytest.approx(7.0)
 
 
+def test_a_column_sharp_in_the_velocity_goes_through_each_records_own_state_filter() -> None:
+    """The residual holds a force the plant feels through the filtered acceleration, so the columns of
+    `SHARP_EFFECTS` pass the state filter of their own record (10 Hz on one, exact states on the other) before the
+    band; a smooth column (viscous) does not, and neither does any column of exact states."""
+    from identify.derivatives import derive_states
+    from identify.diagnose.candidates import SHARP_EFFECTS, band_lowpass, signals, stack_signals
+
+    parts = []
+    for r, hz in enumerate([10.0, None]):  # the second as if its states were exact
+        plant, data = rollout("two_link", [], rng=np.random.default_rng(r), duration_s=3.0)
+        states = derive_states(data, "butterworth", cutoff_hz=10.0)
+        parts.append(signals(plant, data, states, record=r, band_hz=10.0, state_hz=hz))
+    exact = parts[1]
+    s = stack_signals(parts)
+    assert s.state_hz == ((0, 10.0), (1, None))
+    fs = 1.0 / float(np.median(np.diff(s.time)))
+    by_effect = {
+        c.effect: c for c in candidates(plant, ["coulomb_friction", "viscous_friction"], np.random.default_rng(0))
+    }
+    assert "coulomb_friction" in SHARP_EFFECTS and "viscous_friction" not in SHARP_EFFECTS
+    for effect, filtered in [("coulomb_friction", True), ("viscous_friction", False)]:
+        built = by_effect[effect].build(s)
+        first = s.record == 0
+        expect = built.copy()
+        if filtered:
+            expect[first] = band_lowpass(built[first], fs, 10.0)
+        np.testing.assert_allclose(s.columns(by_effect[effect]), s.in_band(expect), atol=1e-12)
+    coulomb = by_effect["coulomb_friction"]
+    assert np.ptp(coulomb.build(s)) == 2.0  # the joint reverses: a sign column with steps
+    np.testing.assert_array_equal(exact.columns(coulomb), exact.in_band(coulomb.build(exact)))
+    change = np.abs(s.columns(coulomb) - s.in_band(coulomb.build(s)))
+    assert change[s.record == 0].max() > 0.03  # 0.075 of the unit step: a band at the cut-off, as analysis_band has
+    assert change[s.record == 1].max() == 0.0
+
+
+def test_the_testbeds_stribeck_force_is_below_its_size_where_the_joint_chatters(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """What the plant felt, not what the diagnosis makes of it: the force the testbed applies at every physics step,
+    regressed on the exact Stribeck shape of the exact velocity, is some 15 % below its 0.08 N m (seed 1, as
+    `diagnose_case` draws its training record), because at a reversal the joint chatters about zero speed, where
+    tanh(dq / 1e-3) is a fraction of the sign. The value the diagnosis should come out near."""
+    import identify.diagnose.testbed as testbed
+
+    log: list[tuple[float, float]] = []
+    applied = testbed._applied_forces
+
+    def logged(effects, names, t, q, dq):  # type: ignore[no-untyped-def]
+        out = applied(effects, names, t, q, dq)
+        log.append((float(dq[1]), float(out[1])))
+        return out
+
+    monkeypatch.setattr(testbed, "_applied_forces", logged)
+    truth = Injected("stribeck_friction", "elbow", 0.08, 0.1)
+    rollout("two_link", [truth], rng=np.random.default_rng(1).spawn(2)[0], duration_s=10.0)
+    dq, force = np.array(log).T
+    shape = -np.sign(dq) * np.exp(-((dq / 0.1) ** 2))
+    felt = float(force @ shape / (shape @ shape))
+    assert 0.06 < felt < 0.075, felt  # 0.0678 measured
+    assert np.count_nonzero(np.diff(np.sign(dq))) > 500  # the chatter: 704 sign changes in 10 s
+
+
 def test_a_stribeck_peak_is_not_pulled_towards_zero_by_the_derivative_filter() -> None:
     """A Stribeck peak is a short pulse at each reversal (some 20 ms at 0.1 rad/s): the residual, built from the
     filtered acceleration, held it low-passed at the derivative filter's cut-off while its column, built from the
     smooth velocity, held it whole; compared unfiltered, 0.08 N m came out 7.5 to 40 of its stds low on every one
-    of these seeds (0.0426 +- 0.0046 at seed 0). Compared in the states' band (`analysis_band`) the value comes out
-    within 3 std on most seeds; what is left, at most some 4 std low (seeds 1 and 4), is the joint stopping at a
-    reversal, where any torque within the peak holds it (as for Coulomb friction, but those rows are the ones that
-    tell a Stribeck peak, and they are kept)."""
+    of these seeds (0.0426 +- 0.0046 at seed 0). Compared in the states' band (`analysis_band`), and with the
+    column through the state filter as the residual has the force (`SHARP_EFFECTS`; without it the median z is
+    -1.2), the value comes out within 3 std on most seeds, centred on the truth. Some 3 std low on seeds 1 and 4
+    is left, in part the plant: its own force (the testbed's tanh(dq / 1e-3) sign, the joint chattering about
+    zero speed at reversals), regressed on the exact shape at the exact speed, is 0.0713, 0.0678, 0.0708 and
+    0.0699 N m on seeds 0, 1, 4 and 5, not 0.08. Seed 1's 0.0689 +- 0.0035 is that force; seed 4's
+    0.0526 +- 0.0082 is 2.2 std below it, which is not explained."""
     truth = Injected("stribeck_friction", "elbow", 0.08, 0.1)
     zs = []
     for seed in range(6):
@@ -367,7 +445,7 @@ def test_a_stribeck_peak_is_not_pulled_towards_zero_by_the_derivative_filter() -
         zs.append((f.value - truth.size) / f.std)
     assert sum(abs(z) < 3 for z in zs) >= 4, zs
     assert min(zs) > -5.0, zs
-    assert abs(float(np.median(zs))) < 1.5, zs
+    assert abs(float(np.median(zs))) < 0.75, zs
 
 
 def test_the_hidden_effect_table_judges_the_value_against_its_std() -> None:

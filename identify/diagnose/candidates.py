@@ -71,6 +71,7 @@ from identify.derivatives import States
 __all__ = [
     "CANDIDATE_EFFECTS",
     "FRICTIONLOSS_EFFECTS",
+    "SHARP_EFFECTS",
     "Candidate",
     "Signals",
     "band_lowpass",
@@ -104,6 +105,10 @@ class Signals:
         used: (N, nv) False where a row's torque of a joint says nothing the columns can explain (a joint that
             never moves in a record is held by static friction, anywhere within its breakaway): the residual
             and every column are zero there, so no fit sees it. None: every row is used.
+        state_hz: (record, cut-off [Hz]) of the filter each record's states went through (None or left out:
+            exact states). The residual sees a force the plant feels only through the filtered acceleration,
+            low-passed at that cut-off; a column sharp in the velocity (`SHARP_EFFECTS`) goes through the same
+            filter before the band, so the two are alike (`columns`).
     """
 
     time: np.ndarray
@@ -119,6 +124,7 @@ class Signals:
     actuated: np.ndarray
     band_hz: float | None = None
     used: np.ndarray | None = None
+    state_hz: tuple[tuple[int, float | None], ...] = ()
 
     @property
     def residual(self) -> np.ndarray:
@@ -152,18 +158,27 @@ class Signals:
 
     def smooth(self, x: np.ndarray) -> np.ndarray:
         """(N, ...) -> the same low-passed at `band_hz`, record by record (identity when band_hz is None)."""
-        if self.band_hz is None:
+        return self._lowpass(x, dict.fromkeys(np.unique(self.record).tolist(), self.band_hz))
+
+    def through_states(self, x: np.ndarray) -> np.ndarray:
+        """(N, ...) -> the same low-passed as each record's states were (`state_hz`; identity for exact states)."""
+        return self._lowpass(x, dict(self.state_hz))
+
+    def _lowpass(self, x: np.ndarray, hz: dict[int, float | None]) -> np.ndarray:
+        if all(h is None for h in hz.values()):
             return x
         fs = 1.0 / float(np.median(np.diff(self.time)))
-        out = np.empty_like(x, dtype=float)
+        out = np.array(x, dtype=float)
         for r in np.unique(self.record):
             rows = self.record == r
-            out[rows] = band_lowpass(x[rows], fs, self.band_hz)
+            out[rows] = band_lowpass(x[rows], fs, hz.get(int(r)))
         return out
 
     def columns(self, candidate: Candidate) -> np.ndarray:
-        """(N, nv, k) the candidate's columns in the analysis band (0 where not `used`)."""
-        return self.in_band(candidate.build(self))
+        """(N, nv, k) the candidate's columns in the analysis band (0 where not `used`); those of
+        `SHARP_EFFECTS` through the state filter first, as the residual sees them (`state_hz`)."""
+        built = candidate.build(self)
+        return self.in_band(self.through_states(built) if candidate.effect in SHARP_EFFECTS else built)
 
     @property
     def n_samples(self) -> int:
@@ -179,8 +194,17 @@ def band_lowpass(x: np.ndarray, fs: float, band_hz: float | None) -> np.ndarray:
     return sp_signal.sosfiltfilt(sos, x, axis=0)  # type: ignore[no-any-return]
 
 
-def signals(plant: Plant, data: Dataset, states: States, *, record: int = 0, band_hz: float | None = None) -> Signals:
-    """The signals of one record on the rows its derivative filter trusts (a contiguous block)."""
+def signals(
+    plant: Plant,
+    data: Dataset,
+    states: States,
+    *,
+    record: int = 0,
+    band_hz: float | None = None,
+    state_hz: float | None = None,
+) -> Signals:
+    """The signals of one record on the rows its derivative filter trusts (a contiguous block); `state_hz`: the
+    cut-off of the filter `states` went through (None: exact)."""
     rows = np.flatnonzero(states.valid)
     if rows.size < 10:
         raise ValueError(f"{data.source}: only {rows.size} trusted rows after filtering; the record is too short")
@@ -201,6 +225,7 @@ def signals(plant: Plant, data: Dataset, states: States, *, record: int = 0, ban
         record=np.full(len(rows), record),
         actuated=np.asarray(plant.actuated, dtype=bool),
         band_hz=band_hz,
+        state_hz=((record, state_hz),),
     )
 
 
@@ -213,7 +238,8 @@ def stack_signals(parts: list[Signals]) -> Signals:
     used = None
     if any(p.used is not None for p in parts):
         used = np.concatenate([np.ones(p.tau.shape, bool) if p.used is None else p.used for p in parts])
-    return Signals(**stacked, actuated=parts[0].actuated, band_hz=parts[0].band_hz, used=used)
+    state_hz = tuple(pair for p in parts for pair in p.state_hz)
+    return Signals(**stacked, actuated=parts[0].actuated, band_hz=parts[0].band_hz, used=used, state_hz=state_hz)
 
 
 @dataclass(frozen=True)
@@ -318,6 +344,9 @@ MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
 SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # ramp widths of a smooth Coulomb friction tried [rad/s]
 FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction")  # shapes of one joint frictionloss
+# forces the plant feels that change within a few ms as the velocity crosses zero: the residual holds them only
+# low-passed at the state filter's cut-off (through the filtered acceleration), so their columns go through it too
+SHARP_EFFECTS = (*FRICTIONLOSS_EFFECTS, "stribeck_friction", "load_friction", "backlash")
 COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # harmonics n of sin(n q) scanned for position-periodic torque
 # [cycles per revolution]
 MIN_COGGING_PERIODS = 1.0  # the training motion of the joint spans at least this many periods 2 pi / n

@@ -312,7 +312,8 @@ def _records(
                 f"{data.source}: joints {list(data.joint_names)} differ from the MJCF's {list(plant.joint_names)}"
             )
         states = derive_states(data, method, **options)
-        out.append(_Record(data, states, signals(plant, data, states, record=i, band_hz=band_hz)))
+        sig = signals(plant, data, states, record=i, band_hz=band_hz, state_hz=state_cutoff_hz(data, method, **options))
+        out.append(_Record(data, states, sig))
     return out
 
 
@@ -899,6 +900,13 @@ def _separation(a: str, b: str, a_name: str = "", b_name: str = "") -> str:
             "swing past horizontal (large angles): a first-moment change goes as sin q and a spring as q, an "
             "offset stays constant"
         )
+    if "joint_offset" in pair and pair & body:
+        return (
+            "where the joint's angle enters gravity alone (a base joint), an offset turns the first moments of the "
+            "links beyond it, which a first-moment change does too, and no motion tells them apart: measure the "
+            "joint's zero against a reference pose; elsewhere fast motion through its range, where the offset moves "
+            "the inertial coupling too"
+        )
     if "torque_gain" in pair:
         return (
             "a motion in which gravity and inertial torques vary independently (slow swings over large angles, "
@@ -931,12 +939,14 @@ def _with_confounding(
     selection: SelectionOptions,
     min_z: float,
 ) -> list[Finding]:
-    """Name, with each finding, the candidates not chosen that these data cannot tell from it.
+    """Name, with each finding, the candidates (chosen too or not) that these data cannot tell from it.
 
     A finding's headline column (weighted, in the band) is confounded with an alternative when the
     alternative's columns, together with the other findings' columns, leave less than `confound_independence`
     (of `selection`) of its norm unexplained, while the other findings alone leave more (it is the alternative
-    that explains it; `_explains`).
+    that explains it; `_explains`). Another finding is such an alternative the same way: with its columns the
+    rest leave less than that, without them more (a shoulder joint offset and a rigid-body change chosen one
+    after the other: on a planar arm the offset only turns the first moments, which the rigid-body columns hold).
 
     The other way round, a payload's inertia can absorb an inertial effect of a joint (`ABSORBED`): the
     alternative's headline column lies (to within the selection's `min_independence`) in the span of the
@@ -971,6 +981,16 @@ def _with_confounding(
         others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
         alone = _share_left(gram, head, others)
         alts: list[dict[str, Any]] = []
+        for j, other in enumerate(steps):  # another finding whose columns leave this one's nearly nothing new
+            own = range(int(start[j]), int(start[j + 1]))
+            if j == i or (
+                other.candidate.target == st.candidate.target and other.candidate.effect == st.candidate.effect
+            ):
+                continue
+            if _explains(
+                alone, _share_left(gram, head, [k for k in others if k not in own]), selection.confound_independence
+            ):
+                alts.append({"effect": other.candidate.effect, "target": other.candidate.target, "independence": alone})
         for k, c in enumerate(alternatives):
             if c.effect == st.candidate.effect and c.target == st.candidate.target:
                 continue
