@@ -1164,8 +1164,7 @@ def _regularise(
     if dev.max() <= _REGULAR_TOL:
         return t, arrays, None
     worst = int(np.argmax(dev))
-    irregular = int(np.sum(dev > _REGULAR_TOL))
-    _check_gaps(t, rows, label, src)
+    irregular = int(np.sum(dev > _REGULAR_TOL))  # no gap among them: `read_measured` ran `_check_gaps` first
     summary = (
         f"{irregular} of {len(steps)} steps differ from the median {h * 1e3:.4g} ms by more than "
         f"{_REGULAR_TOL:.0%} (the largest, {steps[worst] * 1e3:.4g} ms, before {_where(rows, worst)})"

@@ -158,20 +158,20 @@ class Signals:
 
     def smooth(self, x: np.ndarray) -> np.ndarray:
         """(N, ...) -> the same low-passed at `band_hz`, record by record (identity when band_hz is None)."""
-        return self._lowpass(x, dict.fromkeys(np.unique(self.record).tolist(), self.band_hz))
+        return x if self.band_hz is None else self._lowpass(x, lambda _: self.band_hz)
 
     def through_states(self, x: np.ndarray) -> np.ndarray:
         """(N, ...) -> the same low-passed as each record's states were (`state_hz`; identity for exact states)."""
-        return self._lowpass(x, dict(self.state_hz))
+        cutoffs = dict(self.state_hz)
+        return x if all(c is None for c in cutoffs.values()) else self._lowpass(x, cutoffs.get)
 
-    def _lowpass(self, x: np.ndarray, hz: dict[int, float | None]) -> np.ndarray:
-        if all(h is None for h in hz.values()):
-            return x
+    def _lowpass(self, x: np.ndarray, hz: Callable[[int], float | None]) -> np.ndarray:
+        """(N, ...) -> each record's rows low-passed at hz(record) (`band_lowpass`; unchanged where None)."""
         fs = 1.0 / float(np.median(np.diff(self.time)))
-        out = np.array(x, dtype=float)
+        out = np.empty_like(x, dtype=float)
         for r in np.unique(self.record):
             rows = self.record == r
-            out[rows] = band_lowpass(x[rows], fs, hz.get(int(r)))
+            out[rows] = band_lowpass(x[rows], fs, hz(int(r)))
         return out
 
     def columns(self, candidate: Candidate) -> np.ndarray:

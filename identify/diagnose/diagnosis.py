@@ -294,7 +294,8 @@ def analysis_band(
     20 ms at 0.1 rad/s) is in the measured motion's acceleration, which the filter smooths, so the residual
     tau - ID(q, dq, ddq) holds that force low-passed at the cut-off, and its column, built from the smooth dq,
     holds it whole. A fit of the one on the other is pulled towards zero (a 0.08 N m Stribeck peak came out
-    0.043 +- 0.005); filtering both sides at the cut-off keeps them alike (0.076 +- 0.004).
+    0.043 +- 0.005); filtering both sides at the cut-off keeps them alike (0.076 +- 0.004; 0.079 +- 0.004 with the
+    column through the state filter too, `Signals.columns`).
     """
     cutoffs = [c for c in (state_cutoff_hz(d, method, **options) for d in datasets) if c is not None]
     if not cutoffs:
