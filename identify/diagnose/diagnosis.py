@@ -46,6 +46,7 @@ from identify.diagnose.candidates import Candidate, Signals, candidates, signals
 from identify.diagnose.residuals import (
     analyse_residual,
     changing_offsets,
+    describe_signature,
     noise_floor,
     residual_signature,
     whiteness,
@@ -716,7 +717,14 @@ def diagnose(
             f"held out of the fit ({held_out[0]:.4g} -> {held_out[1]:.4g}, weighted MSE): not named, and not in the "
             f"calibrated MJCF; {reason}"
         )
-    remaining = residual_signature(s_va, left, names, sigma) if verdict == "unexplained_structure" else {}
+    remaining = (
+        residual_signature(s_va, left, names, sigma, slow=_slow_rows(s_va, np.ones(plant.nv, bool)))
+        if verdict == "unexplained_structure"
+        else {}
+    )
+    if remaining:
+        reason = f"{reason}: {describe_signature(remaining)}"
+
     return Diagnosis(
         system=plant.name,
         joint_names=names,

@@ -12,7 +12,14 @@ from scipy import signal, stats
 from identify.diagnose.candidates import Signals, position_harmonic
 from identify.diagnose.statistics import correlation_time
 
-__all__ = ["analyse_residual", "changing_offsets", "noise_floor", "residual_signature", "whiteness"]
+__all__ = [
+    "analyse_residual",
+    "changing_offsets",
+    "describe_signature",
+    "noise_floor",
+    "residual_signature",
+    "whiteness",
+]
 
 
 def noise_floor(tau: np.ndarray) -> np.ndarray:
@@ -203,7 +210,13 @@ def _best_lag(
 
 
 def residual_signature(
-    s: Signals, residual: np.ndarray, joint_names: tuple[str, ...], floor: np.ndarray, *, peaks: int = 3
+    s: Signals,
+    residual: np.ndarray,
+    joint_names: tuple[str, ...],
+    floor: np.ndarray,
+    *,
+    peaks: int = 3,
+    slow: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Per joint: what a residual left by a model looks like, to say what remains unexplained.
 
@@ -217,7 +230,10 @@ def residual_signature(
         Welch peaks and their share of the residual's power); `correlation` with q, dq, sign(dq), ddq;
         `position_periodic` {`cycles_per_revolution`, `period_rad`, `amplitude` [N m], `share`}
         (`candidates.position_harmonic`: the best a sin(n q) + b cos(n q) over the periods the motion spans, and
-        the share of the residual variance it explains; 0 where it spans none).
+        the share of the residual variance it explains; 0 where it spans none); where `slow` (N, nv) marks the
+        rows where each joint is at rest or turns round, `turning_round` {`share_of_rows`, `share_of_residual`}:
+        a residual there far above its share of the rows is the friction's shape at low speed, or sticking,
+        which the filtered velocity does not resolve.
     """
     fs = 1.0 / float(np.median(np.diff(s.time)))
     out: dict[str, Any] = {}
@@ -244,4 +260,33 @@ def residual_signature(
                 "share": best[2],
             },
         }
+        if slow is not None:
+            out[name]["turning_round"] = {
+                "share_of_rows": float(np.mean(slow[:, j])),
+                "share_of_residual": float(np.sum(x[slow[:, j]] ** 2) / total),
+            }
     return out
+
+
+def describe_signature(remaining: dict[str, Any]) -> str:
+    """One clause per joint of a `residual_signature`: its size against the noise and what stands out in it: a
+    share where the joint turns round or rests at least three times that of the rows (and 15 % of the residual),
+    a position-periodic part of 30 % or more; else its strongest correlation."""
+    parts = []
+    for joint, sig in remaining.items():
+        notes = []
+        turning = sig.get("turning_round")
+        if turning and turning["share_of_residual"] >= max(3 * turning["share_of_rows"], 0.15):
+            notes.append(
+                f"{turning['share_of_residual']:.0%} of it where the joint turns round or rests "
+                f"({turning['share_of_rows']:.0%} of the rows: the friction's shape at low speed, or sticking)"
+            )
+        periodic = sig["position_periodic"]
+        if periodic["share"] >= 0.3:
+            notes.append(f"{periodic['share']:.0%} of it periodic in position ({periodic['period_rad']:.3g} rad)")
+        finite = {k: v for k, v in sig["correlation"].items() if np.isfinite(v)}
+        if not notes and finite:
+            probe = max(finite, key=lambda k: abs(finite[k]))
+            notes.append(f"correlation {finite[probe]:+.2f} with {probe}")
+        parts.append(", ".join([f"{joint} {sig['rms_over_noise']:.1f} x noise", *notes]))
+    return "; ".join(parts)

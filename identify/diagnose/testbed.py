@@ -16,19 +16,29 @@ Effects (`Injected.effect`):
   (logged angle = true + size);
 - outside it: `quadratic_drag` (size dq |dq|) and `torque_disturbance` (size sin(2 pi extra t), a torque
   that follows time, not the motion).
+
+A second generator owes nothing to MuJoCo (`lab_rollout`): the DFKI lab's own analytic model of the double
+pendulum (`identify.diagnose.authors`, with any of their identified parameter sets, or the nominal MJCF's
+numbers in their form: `author_params_of`) integrated by SciPy under open-loop sinusoidal torques, as the lab
+excited the real arm, and measured through the drivers' CAN quantisation. Its friction is theirs, cf atan(100 dq)
++ b dq, a shape outside the candidates' exact forms (its limit cf pi / 2 is the Coulomb level), and its rotor
+enters as they write it (`lab_model_table`).
 """
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
+from scipy.integrate import solve_ivp
 
 from dynamics.plant import Plant, load_plant
 from envs.dataset import Dataset
+from identify.diagnose.authors import author_accel, author_torque, load_author_model
 
 __all__ = [
     "ARMS",
@@ -39,9 +49,14 @@ __all__ = [
     "TestbedSystem",
     "arm_cases",
     "arm_effect_table",
+    "author_params_of",
+    "diagnose_lab_model",
     "hidden_effect_cases",
     "hidden_effect_table",
     "hidden_markdown",
+    "lab_markdown",
+    "lab_model_table",
+    "lab_rollout",
     "rollout",
     "torque_driven",
 ]
@@ -642,4 +657,193 @@ def hidden_markdown(rows: list[dict[str, Any]]) -> str:
             f"{sum(abs(z) <= 1 for z in every)} lie within 1 std of the truth and {sum(abs(z) <= 2 for z in every)} "
             "within 2 (68 % and 95 % if the stds are honest).",
         ]
+    return "\n".join(lines)
+
+
+# The DFKI drivers' CAN frames: angles as 16 bits over +-12.5 rad, torques as 12 bits over +-12 N m
+DFKI_ANGLE_QUANTUM = 25.0 / 2**16  # [rad]
+DFKI_TORQUE_QUANTUM = 24.0 / 2**12  # [N m]
+# (shoulder, elbow) torque amplitudes [N m] and angular frequency [rad/s] of the open-loop records, as the lab
+# drove the arm (A sin(w t) on the shoulder, A cos(w t) on the elbow); the last one validates
+LAB_RECORDS = (((0.4, 0.8), 10.0), ((0.6, 0.6), 10.0), ((0.8, 0.3), 7.0), ((0.6, 0.4), 10.0))
+
+
+def author_params_of(plant: Plant, gear: float = 1000.0) -> dict[str, float]:
+    """The two-link MJCF's own numbers in the DFKI lab's model form (`identify.diagnose.authors`): the plant
+    without friction, so that `lab_rollout` of these is clean data of the nominal model from another generator.
+
+    Their form puts the rotor inertia Ir through the gear ratio gr on both joints (gr^2 Ir, the armature) and an
+    off-diagonal -gr Ir; the MJCF's equal armatures a are Ir = a / gr^2 at a `gear` large enough that the
+    coupling a / gr is negligible (2e-6 kg m^2 at 1000).
+
+    Raises:
+        ValueError: the model is not a planar two-link arm about parallel y axes with equal armatures.
+    """
+    m = plant.mj_model
+    if plant.nv != 2 or m.nbody != 3 or not np.allclose(m.jnt_axis, [0.0, 1.0, 0.0]):
+        raise ValueError(f"{plant.name}: the lab's form needs a planar two-link arm about parallel y axes")
+    if not np.isclose(m.dof_armature[0], m.dof_armature[1]):
+        raise ValueError(f"{plant.name}: the lab's form has one rotor inertia, the joints' armatures differ")
+
+    def about_axis(b: int) -> tuple[float, float, float]:  # (mass, COM distance below the joint, I about the axis)
+        flat = np.zeros(9)
+        mujoco.mju_quat2Mat(flat, m.body_iquat[b])
+        rot = flat.reshape(3, 3)
+        x, _, z = m.body_ipos[b]
+        mass = float(m.body_mass[b])
+        return mass, float(-z), float((rot @ np.diag(m.body_inertia[b]) @ rot.T)[1, 1] + mass * (x * x + z * z))
+
+    (m1, r1, i1), (m2, r2, i2) = about_axis(1), about_axis(2)
+    if not np.allclose(m.body_ipos[1:, 0], 0.0) or not np.allclose(m.body_pos[2, :2], 0.0):
+        raise ValueError(f"{plant.name}: the lab's form has no lateral centre of mass or elbow offset")
+    return {
+        "I1": i1,
+        "I2": i2,
+        "Ir": float(m.dof_armature[0]) / gear**2,
+        "b1": float(m.dof_damping[0]),
+        "b2": float(m.dof_damping[1]),
+        "cf1": 0.0,
+        "cf2": 0.0,
+        "g": float(-m.opt.gravity[2]),
+        "gr": gear,
+        "l1": float(-m.body_pos[2, 2]),
+        "l2": float("nan"),  # not in the equations
+        "m1": m1,
+        "m2": m2,
+        "r1": r1,
+        "r2": r2,
+    }
+
+
+def lab_rollout(
+    params: dict[str, float],
+    amplitudes: tuple[float, float],
+    omega: float,
+    *,
+    rng: np.random.Generator,
+    duration_s: float = 10.0,
+    rate_hz: float = 500.0,
+    sigma_tau: float = 0.005,
+    joint_names: tuple[str, ...] = ("shoulder", "elbow"),
+    source: str = "lab_model",
+) -> tuple[Dataset, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The lab's analytic model (`author_accel`) integrated by SciPy (LSODA, rtol 1e-9) from rest at the bottom
+    under open-loop torques (A1 sin(w t), A2 cos(w t)), the torque logged at the instant with white noise
+    `sigma_tau` and both signals quantised as the DFKI drivers send them.
+
+    Returns:
+        (the measured record; the exact (q, dq, ddq) at its samples, each (N, 2)).
+    """
+    amp = np.asarray(amplitudes, float)
+
+    def torque(t: np.ndarray) -> np.ndarray:
+        return np.column_stack([amp[0] * np.sin(omega * t), amp[1] * np.cos(omega * t)])
+
+    def rhs(t: float, x: np.ndarray) -> np.ndarray:
+        return np.concatenate([x[2:], author_accel(params, x[None, :2], x[None, 2:], torque(np.array([t])))[0]])
+
+    time = np.arange(int(round(duration_s * rate_hz))) / rate_hz
+    sol = solve_ivp(rhs, (0.0, time[-1]), np.zeros(4), t_eval=time, method="LSODA", rtol=1e-9, atol=1e-11)
+    if not sol.success:
+        raise RuntimeError(f"lab_rollout: the integration failed ({sol.message})")
+    q, dq = sol.y[:2].T, sol.y[2:].T
+    tau = torque(time)
+    ddq = author_accel(params, q, dq, tau)
+    measured = np.round((tau + rng.normal(0.0, sigma_tau, tau.shape)) / DFKI_TORQUE_QUANTUM) * DFKI_TORQUE_QUANTUM
+    data = Dataset(
+        time=time,
+        q=np.round(q / DFKI_ANGLE_QUANTUM) * DFKI_ANGLE_QUANTUM,
+        tau=measured,
+        joint_names=joint_names,
+        actuated=np.ones(2, bool),
+        source=source,
+        meta={"generator": "identify.diagnose.testbed.lab_rollout", "amplitudes": amp.tolist(), "omega": omega},
+    )
+    return data, (q, dq, ddq)
+
+
+def diagnose_lab_model(params: dict[str, float], seed: int = 0, **kwargs: Any) -> tuple[Plant, Any, dict[str, Any]]:
+    """`lab_rollout` of `params` for each of `LAB_RECORDS` (three to train on, the last to validate), diagnosed
+    against the two-link MJCF as the DFKI logs are (10 Hz states, 5 Hz band; `kwargs` pass on to `diagnose`).
+
+    Returns:
+        (the nominal plant, the diagnosis, what the truth says: `model_error` (nv,) RMS [N m] of the calibrated
+        MJCF's torque against the lab model's on the exact validation states, and `truth` the Coulomb level
+        cf pi / 2 and viscous b of each joint).
+    """
+    from identify.diagnose.calibrate import mjcf_measured_torque  # the generator needs neither
+    from identify.diagnose.diagnosis import diagnose
+
+    plant = load_plant("two_link")
+    rngs = np.random.default_rng(seed).spawn(len(LAB_RECORDS))
+    records = [
+        lab_rollout(params, amps, omega, rng=r, joint_names=plant.joint_names, source=f"lab_model_{i}")
+        for i, ((amps, omega), r) in enumerate(zip(LAB_RECORDS, rngs, strict=True))
+    ]
+    kwargs.setdefault("derivative_options", {"cutoff_hz": 10.0})
+    kwargs.setdefault("band_hz", 5.0)
+    dg = diagnose(plant, [d for d, _ in records[:-1]], [records[-1][0]], rng=np.random.default_rng(0), **kwargs)
+    val, (q, dq, ddq) = records[-1]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "calibrated.xml"
+        path.write_text(dg.calibrated_xml)
+        model = mujoco.MjModel.from_xml_path(str(path))
+    error = mjcf_measured_torque(model, val.time, q, dq, ddq) - author_torque(params, q, dq, ddq)
+    truth = {
+        name: {"coulomb_friction": params[f"cf{j + 1}"] * np.pi / 2, "viscous_friction": params[f"b{j + 1}"]}
+        for j, name in enumerate(plant.joint_names)
+    }
+    return plant, dg, {"model_error": np.sqrt(np.mean(error**2, axis=0)), "truth": truth}
+
+
+def lab_model_table(models: dict[str, Path], seed: int = 0) -> list[dict[str, Any]]:
+    """One row per plant: the nominal MJCF's own numbers (`author_params_of`, clean) and each of the lab's parameter
+    files in `models` (label -> yml): the verdict, the findings with (value - truth) / std where the truth knows
+    the effect (Coulomb level cf pi / 2, viscous b), the calibrated MJCF's torque error against the plant's own on
+    the exact validation states, and the validation RMS against the measured torque."""
+    plants = {"nominal MJCF (clean)": author_params_of(load_plant("two_link"))}
+    plants.update({label: load_author_model(path) for label, path in models.items()})
+    rows = []
+    for label, params in plants.items():
+        _, dg, truth = diagnose_lab_model(params, seed)
+        findings = []
+        for f in dg.findings:
+            known = truth["truth"].get(f.target, {}).get(f.effect)
+            z = (f.value - known) / f.std if known is not None and f.std and np.isfinite(f.std) else None
+            findings.append({"name": f.name, "value": f.value, "std": f.std, "truth": known, "z": z})
+        rows.append(
+            {
+                "plant": label,
+                "verdict": dg.verdict,
+                "findings": findings,
+                "model_error": truth["model_error"].tolist(),
+                "nominal_rms": list(dg.models["nominal"]["torque_rms"].values()),
+                "calibrated_rms": list(dg.models["calibrated"]["torque_rms"].values()),
+            }
+        )
+        print(label, dg.verdict, [f["name"] for f in findings], flush=True)
+    return rows
+
+
+def lab_markdown(rows: list[dict[str, Any]]) -> str:
+    """The table of `lab_model_table`, and a line counting the values within 3 std of the truth."""
+    lines = [
+        "| plant | verdict | findings: value ± std (truth, z) | calibrated − plant on exact states [N m] | "
+        "RMS nominal → calibrated [N m] |",
+        "|---|---|---|---:|---:|",
+    ]
+    zs = []
+    for r in rows:
+        cells = []
+        for f in r["findings"]:
+            text = f"{f['name'].split(' or ')[0]} {f['value']:.4g} ± {f['std']:.2g}"
+            if f["z"] is not None:
+                text += f" ({f['truth']:.4g}, {f['z']:+.1f})"
+                zs.append(f["z"])
+            cells.append(text)
+        error = " / ".join(f"{v:.4f}" for v in r["model_error"])
+        rms = " / ".join(f"{a:.4f} → {b:.4f}" for a, b in zip(r["nominal_rms"], r["calibrated_rms"], strict=True))
+        lines.append(f"| {r['plant']} | {r['verdict']} | {'; '.join(cells) or '-'} | {error} | {rms} |")
+    if zs:
+        lines += ["", f"Friction values within 3 std of the plant's: {sum(abs(z) <= 3 for z in zs)} of {len(zs)}."]
     return "\n".join(lines)
