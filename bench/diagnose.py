@@ -8,6 +8,9 @@
    verdict and the validation torque RMS before and after. `arm_effect_table` does the same on two Menagerie
    arms of ../shared/robots/ (the UR5e and the Panda, driven by torque) over seeds 0-3, and counts how often
    the stds cover the truth.
+   `lab_model_table` does it with a generator that owes nothing to MuJoCo: the DFKI lab's own analytic model
+   (their equations and identified parameters, or the nominal MJCF's numbers in their form) integrated by SciPy
+   under open-loop sinusoidal torques.
 2. **Real logs, leave one file out** (`lofo_table`): for each DFKI session (design C.0 and its rebuild C.1)
    every one of the shared files is held out in turn; the diagnosis is fitted on the other four and its
    calibrated MJCF is judged on the held-out file by inverse dynamics through MuJoCo
@@ -32,7 +35,7 @@
    also writes `<system>_calibrated_all.xml`, the diagnosis run on every record).
 
 Writes bench/diagnose.json and bench/diagnose.md. Re-run: `python -m bench diagnose`
-(`python -m bench.diagnose lofo`, `hidden` or `arms` for one part). `python -m bench.diagnose lofo KEY=VALUE ...`
+(`python -m bench.diagnose lofo`, `hidden`, `arms` or `lab` for one part). `python -m bench.diagnose lofo KEY=VALUE ...`
 runs the splits with Hydra overrides of the diagnosis (such as `diagnose.record_offsets=true`) and prints the summary
 only, writing nothing.
 """
@@ -110,11 +113,12 @@ def widened(model: mujoco.MjModel, speed: float) -> mujoco.MjModel:
 
 def judge(
     xml_path: Path, authors: dict[str, dict[str, float]], data: Dataset, ramps: tuple[float, ...] = ()
-) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+) -> tuple[dict[str, list[float]], dict[str, list[float]], dict[str, list[float]]]:
     """Per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band, in its two readings: each model
     evaluated unfiltered on the filtered states, and its torque low-passed as well (both sides filtered, as the
-    diagnosis fits). `ramps`: also the calibrated model with its friction `widened` to each of these widths
-    [rad/s] (`calibrated_ramp_<width>`)."""
+    diagnosis fits); third, the first reading's error with its own mean over the file taken out (what is left
+    once a torque zero of the file's own is allowed). `ramps`: also the calibrated model with its friction
+    `widened` to each of these widths [rad/s] (`calibrated_ramp_<width>`)."""
     states, measured = _judged_states(data)
     rows, fs = states.valid, 1.0 / data.dt
     model = mujoco.MjModel.from_xml_path(str(xml_path))
@@ -129,7 +133,8 @@ def judge(
     def rms(pred: dict[str, np.ndarray]) -> dict[str, list[float]]:
         return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in pred.items()}
 
-    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()})
+    demeaned = {k: np.std(measured - v[rows], axis=0).tolist() for k, v in preds.items()}
+    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()}), demeaned
 
 
 def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[list[float]]]:
@@ -141,7 +146,8 @@ def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[lis
 
     Returns:
         `others`: per file, (nv,) torque RMS [N m] of the form fitted on the other files; `all`: the same
-        fitted once on every file, that one included. Both in the judging band, equal weight per sample.
+        fitted once on every file, that one included; `self`: fitted on that file alone (the best the form does
+        on it: a floor no fit of the form to other data goes below). In the judging band, equal weight per sample.
     """
     judged = [_judged(d) for d in datasets]
     Y = [author_regressor(q, dq, ddq, l1=p["l1"], g=p["g"], gr=p["gr"]) for _, q, dq, ddq, _ in judged]
@@ -159,6 +165,7 @@ def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[lis
     return {
         "others": [rms(k, fit([i for i in range(len(datasets)) if i != k])) for k in range(len(datasets))],
         "all": [rms(k, every) for k in range(len(datasets))],
+        "self": [rms(k, fit([k])) for k in range(len(datasets))],
     }
 
 
@@ -217,9 +224,10 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"
             path.write_text(dg.calibrated_xml)
-            rms, both = judge(path, authors, held, RAMPS)
+            rms, both, demeaned = judge(path, authors, held, RAMPS)
         rms["nominal"] = judge(nominal_xml, {}, held)[0]["calibrated"]
         rms["lab_form_others"], rms["lab_form_all"] = refit["others"][k], refit["all"][k]
+        rms["lab_form_self"] = refit["self"][k]
         rms["calibrated_all"] = calibrated_all[k]
         three = [judged_on(run([d for d in train if d is not t], [held]), held) for t in train] if fewer_files else []
         best = np.min([rms[a] for a in authors], axis=0)
@@ -230,6 +238,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
                 "best_authors": best.tolist(),
                 "wins": [bool(c <= b) for c, b in zip(rms["calibrated"], best, strict=True)],
                 "both_filtered": both,
+                "demeaned": {k: v for k, v in demeaned.items() if k == "calibrated" or k in authors},
                 "wins_both_filtered": [
                     bool(c <= b)
                     for c, b in zip(both["calibrated"], np.min([both[a] for a in authors], axis=0), strict=True)
@@ -291,6 +300,24 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             r = s["both_filtered"]
             cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
             lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(s['wins_both_filtered'])} |")
+    if all("demeaned" in s for s in table["splits"]):
+        lines += [
+            "",
+            f"The same splits of {table['session']} with each model's error less its own mean over the held-out file "
+            "(a torque zero of that file's own allowed to every model): how much of a loss is the file's zero.",
+            "",
+            "| held out | calibrated | " + " | ".join(a) + " | calibrated <= best lab model |",
+            "|" + "---|" * (3 + len(a)),
+        ]
+        for s in table["splits"]:
+            r = s["demeaned"]
+            cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
+            best = np.min([r[m] for m in a], axis=0)
+            lines.append(
+                f"| {s['held_out']} | "
+                + " | ".join(cells)
+                + f" | {_yes_no([c <= b for c, b in zip(r['calibrated'], best, strict=True)])} |"
+            )
     if all("prediction_std" in s for s in table["splits"]):
         lines += [
             "",
@@ -318,20 +345,24 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             "",
             f"In-sample bounds on the shared files of {table['session']}: the lab's model form refitted (least squares "
             "in the same band, on the judge's states) on the other files and on all of them, the held-out one "
-            "included; and the diagnosis itself fitted on all of them (one calibrated MJCF judged on each file). "
+            "included, and on that file alone (the least the form leaves there, a floor for any fit of it to other "
+            "data); and the diagnosis itself fitted on all of them (one calibrated MJCF judged on each file). "
             "Where a fit that has seen the file still loses to the lab's model, the split is out of reach of that "
             "model and its objective on these files, not a matter of generalisation.",
             "",
             "| held out | best lab model | lab form, other files | lab form, all files | <= lab | "
-            "calibrated, all files | <= lab |",
-            "|---|---|---|---|---|---|---|",
+            "calibrated, all files | <= lab | lab form, this file alone |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for s in table["splits"]:
             r = s["torque_rms"]
             cells = [f"{x[0]:.4f} / {x[1]:.4f}" for x in (s["best_authors"], r["lab_form_others"], r["lab_form_all"])]
+            alone = r.get("lab_form_self")
+            alone_cell = f"{alone[0]:.4f} / {alone[1]:.4f}" if alone else "-"
             lines.append(
                 f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(s['reachable_in_sample'])} | "
-                f"{r['calibrated_all'][0]:.4f} / {r['calibrated_all'][1]:.4f} | {_yes_no(s['calibrated_in_sample'])} |"
+                f"{r['calibrated_all'][0]:.4f} / {r['calibrated_all'][1]:.4f} | {_yes_no(s['calibrated_in_sample'])} | "
+                f"{alone_cell} |"
             )
     return "\n".join(lines)
 
@@ -414,15 +445,24 @@ def ramp_markdown(tables: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-PARTS = ("hidden", "arms", "lofo")  # what `python -m bench diagnose` runs
+PARTS = ("hidden", "arms", "lab", "lofo")  # what `python -m bench diagnose` runs
+# the lab's parameter sets that `lab` runs as the plant (identify.diagnose.testbed.lab_model_table)
+LAB_MODELS = {
+    f"{session} model {v}": (folder, f"design_{session}_model_{v}.yml")
+    for session, folder, versions in (
+        ("C.0", "dfki_double_pendulum_c0", ("3.0", "h1.0")),
+        ("C.1", "dfki_double_pendulum_c1", ("1.0", "2.0")),
+    )
+    for v in versions
+}
 
 
 def main(parts: tuple[str, ...] = PARTS) -> None:
-    """`parts`: `hidden`, `arms` and/or `lofo`, and any `key=value` Hydra overrides of the diagnosis
+    """`parts`: `hidden`, `arms`, `lab` and/or `lofo`, and any `key=value` Hydra overrides of the diagnosis
     (conf/diagnose.yaml): with overrides the leave-one-file-out splits are run and summarised on stdout, and no
     file is written (the tables in bench/ stay those of the defaults)."""
     overrides = tuple(p for p in parts if "=" in p)
-    if overrides and ("hidden" in parts or "arms" in parts):
+    if overrides and ("hidden" in parts or "arms" in parts or "lab" in parts):
         raise SystemExit("overrides apply to the real-data splits only: run `python -m bench.diagnose lofo KEY=VALUE`")
     if overrides:
         if not SHARED.is_dir():
@@ -441,6 +481,14 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
 
         result["hidden"] = hidden_effect_table()
         result["several_records"] = several_records_table()
+    if "lab" in parts:
+        from identify.diagnose.testbed import lab_model_table
+
+        if not SHARED.is_dir():
+            print(f"skipping the lab-model table: {SHARED} is absent")
+        else:
+            models = {k: SHARED / folder / "authors_identified" / name for k, (folder, name) in LAB_MODELS.items()}
+            result["lab_model"] = lab_model_table(models)
     if "arms" in parts:
         from identify.diagnose.testbed import arm_effect_table
 
@@ -480,6 +528,22 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
             "the table is seed 0, the closing line counts seeds 0-3.",
             "",
             hidden_markdown(result["arms_hidden"]),
+            "",
+        ]
+    if "lab_model" in result:
+        from identify.diagnose.testbed import lab_markdown
+
+        md += [
+            "## The DFKI lab's analytic model as the plant (a generator without MuJoCo)",
+            "",
+            "`identify.diagnose.testbed.lab_rollout`: the lab's own equations of the double pendulum integrated by "
+            "SciPy under open-loop torques A1 sin(w t), A2 cos(w t) (three 10 s records to train on, a fourth to "
+            "validate), quantised as the drivers' CAN frames; the plant is the nominal MJCF's own numbers in that "
+            "form (clean) or one of the lab's identified parameter sets. Their friction is cf atan(100 dq) + b dq: "
+            "its truth here is the Coulomb level cf pi / 2 and b. The error column is the calibrated MJCF's torque "
+            "against the plant's on the exact validation states (seed 0).",
+            "",
+            lab_markdown(result["lab_model"]),
             "",
         ]
     for table in result.get("lofo", {}).values():
