@@ -272,6 +272,26 @@ def _yes_no(flags: list[bool]) -> str:
     return " / ".join("yes" if w else "**no**" for w in flags)
 
 
+def _reading_markdown(table: dict[str, Any], key: str, intro: str) -> list[str]:
+    """The splits of `table` in another reading `key` of each split (per model, (nv,) RMS): the calibrated model and
+    the lab's, and whether the calibrated one is at most the best of the lab's on each joint."""
+    a = table["authors"]
+    lines = [
+        "",
+        f"The same splits of {table['session']} with {intro}:",
+        "",
+        "| held out | calibrated | " + " | ".join(a) + " | calibrated <= best lab model |",
+        "|" + "---|" * (3 + len(a)),
+    ]
+    for s in table["splits"]:
+        r = s[key]
+        cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
+        best = np.min([r[m] for m in a], axis=0)
+        wins = [bool(c <= b) for c, b in zip(r["calibrated"], best, strict=True)]
+        lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(wins)} |")
+    return lines
+
+
 def _lofo_markdown(table: dict[str, Any]) -> str:
     a = table["authors"]
     head = "| held out | nominal | calibrated | " + " | ".join(a) + " | calibrated <= best lab model | findings |"
@@ -287,37 +307,19 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
         lines.append(
             f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(s['wins'])} | {', '.join(s['findings'])} |"
         )
-    if all("both_filtered" in s for s in table["splits"]):
-        lines += [
-            "",
-            f"The same splits of {table['session']} with each model's torque low-passed too (both sides filtered, "
-            "the other reading of the judging band):",
-            "",
-            "| held out | calibrated | " + " | ".join(a) + " | calibrated <= best lab model |",
-            "|" + "---|" * (3 + len(a)),
-        ]
-        for s in table["splits"]:
-            r = s["both_filtered"]
-            cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
-            lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(s['wins_both_filtered'])} |")
-    if all("demeaned" in s for s in table["splits"]):
-        lines += [
-            "",
-            f"The same splits of {table['session']} with each model's error less its own mean over the held-out file "
-            "(a torque zero of that file's own allowed to every model): how much of a loss is the file's zero.",
-            "",
-            "| held out | calibrated | " + " | ".join(a) + " | calibrated <= best lab model |",
-            "|" + "---|" * (3 + len(a)),
-        ]
-        for s in table["splits"]:
-            r = s["demeaned"]
-            cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
-            best = np.min([r[m] for m in a], axis=0)
-            lines.append(
-                f"| {s['held_out']} | "
-                + " | ".join(cells)
-                + f" | {_yes_no([c <= b for c, b in zip(r['calibrated'], best, strict=True)])} |"
-            )
+    for key, intro in (
+        (
+            "both_filtered",
+            "each model's torque low-passed too (both sides filtered, the other reading of the judging band)",
+        ),
+        (
+            "demeaned",
+            "each model's error less its own mean over the held-out file (a torque zero of that file's own allowed to "
+            "every model): how much of a loss is the file's zero",
+        ),
+    ):
+        if all(key in s for s in table["splits"]):
+            lines += _reading_markdown(table, key, intro)
     if all("prediction_std" in s for s in table["splits"]):
         lines += [
             "",
