@@ -9,7 +9,10 @@ Verdict rules covered here:
   lab's C.0 model h1.0 as the plant (the selection set its elbow viscous friction aside before the rigid-body
   refit and never tried it again; the elbow's Coulomb friction then came out at 0.155 +- 0.0009 N m for 0.121);
 - `unexplained_structure` where the atan friction's shape at low speed is larger than the noise (the C.1 model
-  1.0's, 0.25 N m): the reason says where the residual sits.
+  1.0's, 0.25 N m): the reason says where the residual sits;
+- sensor effects (a torque gain, offset or delay) named on that plant within 3 std, and an elbow encoder offset,
+  which on a planar arm is a turn of link 2's first moments, named as the rigid-body change it is, with the offset
+  beside it as the alternative these data cannot separate (it had been named `rigid_body` alone).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from dynamics.plant import load_plant
 from dynamics.torque import joint_torque
 from identify.diagnose import author_torque, load_author_model
 from identify.diagnose.residuals import describe_signature
-from identify.diagnose.testbed import author_params_of, diagnose_lab_model
+from identify.diagnose.testbed import Injected, author_params_of, diagnose_lab_model
 
 
 def test_the_nominal_mjcf_in_the_lab_form_has_the_mjcfs_inverse_dynamics() -> None:
@@ -100,3 +103,36 @@ def test_the_signature_names_what_stands_out() -> None:
     assert a.startswith("a 2.0 x noise, 40% of it where the joint turns round") and "periodic" not in a
     assert "50% of it periodic in position (0.5 rad)" in b and "turns round" not in b
     assert c == "c 2.0 x noise, correlation -0.60 with dq"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "effect",
+    [
+        Injected("torque_gain", "elbow", 0.1),
+        Injected("torque_offset", "shoulder", 0.08),
+        Injected("time_delay", "shoulder", 0.006),
+    ],
+    ids=lambda e: e.effect,
+)
+def test_a_sensor_effect_on_the_lab_model_is_named_within_its_std(effect: Injected) -> None:
+    plant = load_plant("two_link")
+    _, dg, truth = diagnose_lab_model(author_params_of(plant), seed=0, sensor=[effect])
+    assert dg.verdict == "explained", dg.verdict_reason
+    first = dg.findings[0]
+    assert (first.effect, first.target) == (effect.effect, effect.joint), first.name
+    assert abs(first.value - truth["truth"][effect.joint][effect.effect]) < 3 * first.std, (first.value, first.std)
+    assert np.all(truth["model_error"] < 2e-3), truth["model_error"]
+
+
+@pytest.mark.slow
+def test_an_elbow_encoder_offset_is_the_rigid_body_change_it_equals_with_the_offset_named_beside_it() -> None:
+    plant = load_plant("two_link")
+    _, dg, truth = diagnose_lab_model(author_params_of(plant), seed=0, sensor=[Injected("joint_offset", "elbow", 0.1)])
+    assert dg.verdict == "explained", dg.verdict_reason
+    (rigid,) = [f for f in dg.findings if f.effect == "rigid_body"]
+    (offset,) = [c for c in rigid.confounded_with if (c["effect"], c["target"]) == ("joint_offset", "elbow")]
+    # measured 0.0998 +- 0.00022 rad: the offset that makes the same torque as the rigid-body change found
+    assert abs(offset["value"] - 0.1) < 3 * offset["std"], offset
+    assert "reference pose" in rigid.separate_by
+    assert np.all(truth["model_error"] < 2e-3), truth["model_error"]

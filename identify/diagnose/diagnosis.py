@@ -911,10 +911,11 @@ def _separation(a: str, b: str, a_name: str = "", b_name: str = "") -> str:
         )
     if "joint_offset" in pair and pair & body:
         return (
-            "where the joint's angle enters gravity alone (a base joint), an offset turns the first moments of the "
-            "links beyond it, which a first-moment change does too, and no motion tells them apart: measure the "
-            "joint's zero against a reference pose; elsewhere fast motion through its range, where the offset moves "
-            "the inertial coupling too"
+            "a joint's offset turns the first moments of the links beyond it: past the first joint of a chain of "
+            "parallel axes (a planar arm's elbow), and at the joint of a single link, that is a first-moment change "
+            "exactly and no motion tells them apart: measure the joint's zero against a reference pose; elsewhere "
+            "it turns gravity against the outer links' inertial coupling, which a first-moment change does not: "
+            "swing the outer joints fast over large angles"
         )
     if "torque_gain" in pair:
         return (
@@ -983,11 +984,12 @@ def _with_confounding(
     gram = M.T @ M  # every share below is read from it: no further pass over the rows
     out = []
     for i, (f, st) in enumerate(zip(findings, steps, strict=True)):
+        others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
         if st.candidate.effect == "rigid_body":
-            out.append(f)
+            cols = list(range(int(start[i]), int(start[i + 1])))
+            out.append(_rigid_alternatives(f, cols, others, alternatives, offsets, gram, fit, selection))
             continue
         head = int(start[i])
-        others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
         alone = _share_left(gram, head, others)
         alts: list[dict[str, Any]] = []
         for j, other in enumerate(steps):  # another finding whose columns leave this one's nearly nothing new
@@ -1040,6 +1042,68 @@ def _with_confounding(
             f = dataclasses.replace(f, confounded_with=unique, separate_by=sep)
         out.append(f)
     return out
+
+
+def _rigid_alternatives(
+    f: Finding,
+    own: list[int],
+    others: list[int],
+    alternatives: list[Candidate],
+    offsets: list[int],
+    gram: np.ndarray,
+    fit: LinearFit,
+    selection: SelectionOptions,
+) -> Finding:
+    """A rigid-body finding with the effects not chosen that do what its change does on these data.
+
+    The rigid-body change is many columns and no headline; what it does is the torque its coefficients make. An
+    alternative does the same where, with the other findings, its columns leave less than `confound_independence`
+    of that torque (in norm) and the others alone leave more (`_explains`). An encoder offset on a planar arm's
+    joint turns the first moments of the links beyond it, which is a rigid-body change: the lab-model generator's
+    0.1 rad elbow offset was named `rigid_body` alone. A one-column alternative is reported with the value that
+    makes the same torque and its std from the rigid-body coefficients' covariance.
+    """
+    c_own = fit.coef[own]
+    gy = gram[:, own] @ c_own  # the columns against the torque the change makes
+    yy = float(c_own @ gram[np.ix_(own, own)] @ c_own)
+    if yy <= 0:
+        return f
+
+    def left(span: list[int]) -> float:
+        if not span:
+            return 1.0
+        g = gy[span]
+        explained = float(g @ np.linalg.lstsq(gram[np.ix_(span, span)], g, rcond=1e-12)[0])
+        return float(np.sqrt(max(1.0 - explained / yy, 0.0)))
+
+    alone = left(others)
+    alts: list[dict[str, Any]] = []
+    for k, c in enumerate(alternatives):
+        cols = list(range(offsets[k], offsets[k + 1]))
+        if c.effect == "rigid_body":
+            continue
+        share = left(others + cols)
+        if not _explains(share, alone, selection.confound_independence):
+            continue
+        alt: dict[str, Any] = {"effect": c.effect, "target": c.target, "independence": share}
+        if len(cols) == 1:  # the coefficient that makes the same torque, a linear map of the change's
+            span = others + cols
+            row = np.linalg.lstsq(gram[np.ix_(span, span)], gram[np.ix_(span, own)], rcond=1e-12)[0][-1]
+            coef = float(row @ c_own)
+            if not float(c.lower[0]) <= coef <= float(c.upper[0]):
+                continue  # outside its physical range: not this effect
+            alt["value"] = 1.0 + coef if c.effect == "torque_gain" else coef
+            alt["std"] = float(np.sqrt(max(float(row @ fit.cov[np.ix_(own, own)] @ row), 0.0)))
+        alts.append(alt)
+    if not alts:
+        return f
+    alts.sort(key=lambda a: a["independence"])
+    sep = "; ".join(
+        dict.fromkeys(
+            _separation("rigid_body", a["effect"], "rigid_body", f"{a['effect']} {a['target']}") for a in alts
+        )
+    )
+    return dataclasses.replace(f, confounded_with=alts, separate_by=sep)
 
 
 def _explains(share: float, alone: float, threshold: float) -> bool:

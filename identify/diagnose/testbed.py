@@ -28,6 +28,7 @@ enters as they write it (`lab_model_table`).
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -364,6 +365,27 @@ def rollout(
     return plant, _measure(plant, effects, time, q_log, tau_log, cfg, rng, source, lead_s=0.5 * (1.0 / rate_hz - h))
 
 
+SENSOR_EFFECTS = ("time_delay", "torque_gain", "torque_offset", "joint_offset")  # what the sensors do, not the plant
+
+
+def _sensed(
+    names: tuple[str, ...], effects: Sequence[Injected], time: np.ndarray, q: np.ndarray, tau: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(q, tau) as the sensors with the `SENSOR_EFFECTS` among `effects` report them (copies)."""
+    q, tau = q.copy(), tau.copy()
+    for e in effects:
+        j = names.index(e.joint)
+        if e.effect == "time_delay":
+            tau[:, j] = np.interp(time - e.size, time, tau[:, j], left=tau[0, j])
+        elif e.effect == "torque_gain":
+            tau[:, j] *= 1.0 + e.size
+        elif e.effect == "torque_offset":
+            tau[:, j] += e.size
+        elif e.effect == "joint_offset":
+            q[:, j] += e.size
+    return q, tau
+
+
 def _measure(
     plant: Plant,
     effects: list[Injected],
@@ -376,17 +398,7 @@ def _measure(
     *,
     lead_s: float,
 ) -> Dataset:
-    q, tau = q.copy(), tau.copy()
-    for e in effects:
-        j = plant.joint_names.index(e.joint)
-        if e.effect == "time_delay":
-            tau[:, j] = np.interp(time - e.size, time, tau[:, j], left=tau[0, j])
-        elif e.effect == "torque_gain":
-            tau[:, j] *= 1.0 + e.size
-        elif e.effect == "torque_offset":
-            tau[:, j] += e.size
-        elif e.effect == "joint_offset":
-            q[:, j] += e.size
+    q, tau = _sensed(plant.joint_names, effects, time, q, tau)
     act = np.asarray(plant.actuated, bool)
     tau = tau + rng.normal(0.0, 1.0, tau.shape) * np.array(cfg.sigma_tau)
     tau = np.where(act, np.round(tau / cfg.tau_resolution) * cfg.tau_resolution, 0.0)
@@ -726,15 +738,23 @@ def lab_rollout(
     sigma_tau: float = 0.005,
     joint_names: tuple[str, ...] = ("shoulder", "elbow"),
     source: str = "lab_model",
+    sensor: Sequence[Injected] = (),
 ) -> tuple[Dataset, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The lab's analytic model (`author_accel`) integrated by SciPy (LSODA, rtol 1e-9) from rest at the bottom
     under open-loop torques (A1 sin(w t), A2 cos(w t)), the torque logged at the instant with white noise
-    `sigma_tau` and both signals quantised as the DFKI drivers send them.
+    `sigma_tau` and both signals quantised as the DFKI drivers send them, after the `sensor` effects (of
+    `SENSOR_EFFECTS`: what the plant does is in `params`).
 
     Returns:
         (the measured record; the exact (q, dq, ddq) at its samples, each (N, 2)).
     """
     amp = np.asarray(amplitudes, float)
+    plant_side = [e.effect for e in sensor if e.effect not in SENSOR_EFFECTS]
+    if plant_side:
+        raise ValueError(
+            f"lab_rollout: {plant_side} act on the plant, set them in its parameters; sensor effects: "
+            f"{', '.join(SENSOR_EFFECTS)}"
+        )
 
     def torque(t: np.ndarray) -> np.ndarray:
         return np.column_stack([amp[0] * np.sin(omega * t), amp[1] * np.cos(omega * t)])
@@ -749,11 +769,12 @@ def lab_rollout(
     q, dq = sol.y[:2].T, sol.y[2:].T
     tau = torque(time)
     ddq = author_accel(params, q, dq, tau)
-    measured = np.round((tau + rng.normal(0.0, sigma_tau, tau.shape)) / DFKI_TORQUE_QUANTUM) * DFKI_TORQUE_QUANTUM
+    q_seen, tau_seen = _sensed(joint_names, sensor, time, q, tau)
+    noisy = tau_seen + rng.normal(0.0, sigma_tau, tau.shape)
     data = Dataset(
         time=time,
-        q=np.round(q / DFKI_ANGLE_QUANTUM) * DFKI_ANGLE_QUANTUM,
-        tau=measured,
+        q=np.round(q_seen / DFKI_ANGLE_QUANTUM) * DFKI_ANGLE_QUANTUM,
+        tau=np.round(noisy / DFKI_TORQUE_QUANTUM) * DFKI_TORQUE_QUANTUM,
         joint_names=joint_names,
         actuated=np.ones(2, bool),
         source=source,
@@ -762,9 +783,12 @@ def lab_rollout(
     return data, (q, dq, ddq)
 
 
-def diagnose_lab_model(params: dict[str, float], seed: int = 0, **kwargs: Any) -> tuple[Plant, Any, dict[str, Any]]:
-    """`lab_rollout` of `params` for each of `LAB_RECORDS` (three to train on, the last to validate), diagnosed
-    against the two-link MJCF as the DFKI logs are (10 Hz states, 5 Hz band; `kwargs` pass on to `diagnose`).
+def diagnose_lab_model(
+    params: dict[str, float], seed: int = 0, sensor: Sequence[Injected] = (), **kwargs: Any
+) -> tuple[Plant, Any, dict[str, Any]]:
+    """`lab_rollout` of `params` (and `sensor` effects) for each of `LAB_RECORDS` (three to train on, the last to
+    validate), diagnosed against the two-link MJCF as the DFKI logs are (10 Hz states, 5 Hz band; `kwargs` pass on
+    to `diagnose`).
 
     Returns:
         (the nominal plant, the diagnosis, what the truth says: `model_error` (nv,) RMS [N m] of the calibrated
@@ -777,7 +801,7 @@ def diagnose_lab_model(params: dict[str, float], seed: int = 0, **kwargs: Any) -
     plant = load_plant("two_link")
     rngs = np.random.default_rng(seed).spawn(len(LAB_RECORDS))
     records = [
-        lab_rollout(params, amps, omega, rng=r, joint_names=plant.joint_names, source=f"lab_model_{i}")
+        lab_rollout(params, amps, omega, rng=r, joint_names=plant.joint_names, source=f"lab_model_{i}", sensor=sensor)
         for i, ((amps, omega), r) in enumerate(zip(LAB_RECORDS, rngs, strict=True))
     ]
     kwargs.setdefault("derivative_options", {"cutoff_hz": 10.0})
@@ -788,9 +812,13 @@ def diagnose_lab_model(params: dict[str, float], seed: int = 0, **kwargs: Any) -
         path = Path(tmp) / "calibrated.xml"
         path.write_text(dg.calibrated_xml)
         model = mujoco.MjModel.from_xml_path(str(path))
-    error = mjcf_measured_torque(model, val.time, q, dq, ddq) - author_torque(params, q, dq, ddq)
+    # what the sensors report of the plant's torque, against what the calibrated MJCF says they report at the
+    # angles the encoders read
+    q_seen, reported = _sensed(plant.joint_names, sensor, val.time, q, author_torque(params, q, dq, ddq))
+    error = mjcf_measured_torque(model, val.time, q_seen, dq, ddq) - reported
     truth = {
         name: {"coulomb_friction": params[f"cf{j + 1}"] * np.pi / 2, "viscous_friction": params[f"b{j + 1}"]}
+        | {e.effect: 1.0 + e.size if e.effect == "torque_gain" else e.size for e in sensor if e.joint == name}
         for j, name in enumerate(plant.joint_names)
     }
     return plant, dg, {"model_error": np.sqrt(np.mean(error**2, axis=0)), "truth": truth}
