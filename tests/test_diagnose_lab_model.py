@@ -136,3 +136,30 @@ def test_an_elbow_encoder_offset_is_the_rigid_body_change_it_equals_with_the_off
     assert abs(offset["value"] - 0.1) < 3 * offset["std"], offset
     assert "reference pose" in rigid.separate_by
     assert np.all(truth["model_error"] < 2e-3), truth["model_error"]
+
+
+@pytest.mark.slow
+def test_a_friction_larger_than_the_torque_the_model_needs_is_not_a_flipped_sign() -> None:
+    """An elbow viscous friction of 0.05 N m s/rad driven at 12 rad/s, above the elbow's resonance: the measured
+    torque runs against the frictionless nominal model's (correlation -0.51) and the record was refused as flipped.
+    Beside a friction >= 0 the nominal torque explains it (coefficient 0.999); a column flipped where the sign is
+    clear is still refused."""
+    import dataclasses
+
+    from dynamics.errors import DataError
+    from identify.diagnose import diagnose
+    from identify.diagnose.testbed import lab_rollout
+
+    plant = load_plant("two_link")
+    p = {**author_params_of(plant), "b2": 0.05}
+    settings = [((0.4, 0.8), 10.0), ((0.7, 0.3), 12.0), ((0.6, 0.4), 10.0)]
+    recs = [
+        lab_rollout(p, a, w, rng=np.random.default_rng(i), joint_names=plant.joint_names, source=f"r{i}")[0]
+        for i, (a, w) in enumerate(settings)
+    ]
+    options = {"rng": np.random.default_rng(0), "derivative_options": {"cutoff_hz": 10.0}, "band_hz": 5.0}
+    dg = diagnose(plant, recs[:2], recs[2:], **options)
+    assert [(f.effect, f.target) for f in dg.findings][:1] == [("viscous_friction", "elbow")]
+    flipped = dataclasses.replace(recs[0], tau=recs[0].tau * np.array([1.0, -1.0]))
+    with pytest.raises(DataError, match=r"r0: tau_elbow runs against .* its sign looks flipped"):
+        diagnose(plant, [flipped, recs[1]], recs[2:], **options)
