@@ -325,12 +325,6 @@ SIGN_SIZE = -0.1  # ... and at least this large a share of it with the opposite 
 # shoulder, all but passive, carries 0.18 of the nominal torque) ...
 FRICTION_EXPLAINS = 0.9  # ... unless the nominal torque with a joint friction >= 0 beside it explains this share of it
 
-
-def _friction_explains(coef: float, explained: float) -> bool:
-    """Whether a torque that runs against the nominal one is that torque plus a friction (`_beside_friction`)."""
-    return coef >= SIGN_SIZE and explained >= FRICTION_EXPLAINS
-
-
 # the measured torque of a moving actuated joint varies at least / at most this many times as much as the nominal
 # model's (outside: a dead sensor, another unit, a time axis off by a factor). The DFKI logs span 0.083 (C.1
 # 144115's elbow, commanded zero torque: such a joint is not held to the lower bound) to 1.78. The upper bound
@@ -401,11 +395,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                 f"(data.columns.tau_{names[j]}), or set diagnose.check_torque_signs=false if the nominal model is "
                 "that far off"
             )
-        if (
-            r[j, j] < SIGN_CORRELATION
-            and size < SIGN_SIZE
-            and not _friction_explains(*_beside_friction(a[:, j], b[:, j], signal, j))
-        ):
+        if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE and not _friction_explains(a[:, j], b[:, j], signal, j):
             raise DataError(
                 f"{src}: {column(j)} runs against the torque the nominal model needs at {names[j]} along the motion "
                 f"(correlation {r[j, j]:.2f}{band}, {size:.2f} times its size): its sign looks flipped: negate its "
@@ -415,22 +405,22 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
             )
 
 
-def _beside_friction(nominal: np.ndarray, measured: np.ndarray, signal: Signals, j: int) -> tuple[float, float]:
-    """(the nominal torque's coefficient in the measured one, the share of the measured torque's variance explained)
-    where the joint's viscous and Coulomb friction, which the nominal model may lack, are fitted beside it, each >= 0
-    (both torques (N,), centred, in the band). A friction larger than the torque the model needs (a heavily damped
-    joint driven above its resonance) can turn the plain correlation negative while the torque's sign is right: on the
-    lab's analytic model with an elbow viscous friction of 0.05 N m s/rad driven at 12 rad/s, the correlation was
-    -0.51 (-3.02 times the size) and the record was refused as flipped; beside the friction the coefficient is 0.999
-    and the share explained 0.99998. A flipped column's friction would have to be negative; the share asked
-    (`FRICTION_EXPLAINS`) keeps a flipped column of a joint that hardly moves refused (a C.1 shoulder: coefficient
-    0.77, share 0.65)."""
+def _friction_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signals, j: int) -> bool:
+    """Whether a measured torque that runs against the nominal one (both (N,), centred, in the band) is that torque
+    plus the joint's friction, which the nominal model may lack: with a viscous and a Coulomb friction >= 0 fitted
+    beside it, the nominal torque's coefficient is at least `SIGN_SIZE` and the fit explains `FRICTION_EXPLAINS` of
+    the measured torque's variance. A friction larger than the torque the model needs (a heavily damped joint driven
+    above its resonance) can turn the plain correlation negative while the torque's sign is right: on the lab's
+    analytic model with an elbow viscous friction of 0.05 N m s/rad driven at 12 rad/s, the correlation was -0.51
+    (-3.02 times the size) and the record was refused as flipped; beside the friction the coefficient is 0.999 and
+    the share explained 0.99998. A flipped column's friction would have to be negative; the share asked keeps a
+    flipped column of a joint that hardly moves refused (a C.1 shoulder: coefficient 0.77, share 0.65)."""
     cols = [signal.smooth(signal.dq)[:, j], signal.smooth(np.sign(signal.dq))[:, j]]
     X = np.column_stack([nominal, *(c - c.mean() for c in cols)])
     scale = np.maximum(np.linalg.norm(X, axis=0), 1e-300)
     fit = optimize.lsq_linear(X / scale, measured, bounds=([-np.inf, 0.0, 0.0], [np.inf, np.inf, np.inf]))
     left = float(np.sum((measured - (X / scale) @ fit.x) ** 2)) / max(float(np.sum(measured**2)), 1e-300)
-    return float(fit.x[0] / scale[0]), 1.0 - left
+    return float(fit.x[0] / scale[0]) >= SIGN_SIZE and 1.0 - left >= FRICTION_EXPLAINS
 
 
 # two angle columns look swapped where the nominal model, given them the other way round, leaves at most this
@@ -755,7 +745,6 @@ def diagnose(
     )
     if remaining:
         reason = f"{reason}: {describe_signature(remaining)}"
-
     return Diagnosis(
         system=plant.name,
         joint_names=names,
@@ -1018,7 +1007,11 @@ def _with_confounding(
         others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
         if st.candidate.effect == "rigid_body":
             cols = list(range(int(start[i]), int(start[i + 1])))
-            out.append(_rigid_alternatives(f, cols, others, alternatives, offsets, gram, fit, selection))
+            out.append(
+                _confounded(
+                    f, st.candidate, _rigid_alternatives(cols, others, alternatives, offsets, gram, fit, selection)
+                )
+            )
             continue
         head = int(start[i])
         alone = _share_left(gram, head, others)
@@ -1055,28 +1048,29 @@ def _with_confounding(
                 alts.append(
                     {"effect": c.effect, "target": c.target, "independence": absorbed, "value": value, "std": std}
                 )
-        if alts:
-            alts.sort(key=lambda a: a["independence"])
-            seen: set[tuple[str, str]] = set()
-            unique = []
-            for a in alts:
-                if (a["effect"], a["target"]) not in seen:
-                    seen.add((a["effect"], a["target"]))
-                    unique.append(a)
-            here = f"{st.candidate.effect} {st.candidate.target}".strip()
-            sep = "; ".join(
-                dict.fromkeys(
-                    _separation(st.candidate.effect, a["effect"], here, f"{a['effect']} {a['target']}".strip())
-                    for a in unique
-                )
-            )
-            f = dataclasses.replace(f, confounded_with=unique, separate_by=sep)
-        out.append(f)
+        out.append(_confounded(f, st.candidate, alts))
     return out
 
 
+def _confounded(f: Finding, cand: Candidate, alts: list[dict[str, Any]]) -> Finding:
+    """The finding with its alternatives (`confounded_with`: each effect and target once, the one its column leaves
+    least of first) and what motion would separate them (`separate_by`); itself where there are none."""
+    if not alts:
+        return f
+    first: dict[tuple[str, str], dict[str, Any]] = {}
+    for a in sorted(alts, key=lambda a: a["independence"]):
+        first.setdefault((a["effect"], a["target"]), a)
+    unique = list(first.values())
+    here = f"{cand.effect} {cand.target}".strip()
+    sep = "; ".join(
+        dict.fromkeys(
+            _separation(cand.effect, a["effect"], here, f"{a['effect']} {a['target']}".strip()) for a in unique
+        )
+    )
+    return dataclasses.replace(f, confounded_with=unique, separate_by=sep)
+
+
 def _rigid_alternatives(
-    f: Finding,
     own: list[int],
     others: list[int],
     alternatives: list[Candidate],
@@ -1084,8 +1078,8 @@ def _rigid_alternatives(
     gram: np.ndarray,
     fit: LinearFit,
     selection: SelectionOptions,
-) -> Finding:
-    """A rigid-body finding with the effects not chosen that do what its change does on these data.
+) -> list[dict[str, Any]]:
+    """The effects not chosen that do on these data what a rigid-body finding's change does (`confounded_with`).
 
     The rigid-body change is many columns and no headline; what it does is the torque its coefficients make. An
     alternative does the same where, with the other findings, its columns leave less than `confound_independence`
@@ -1098,23 +1092,13 @@ def _rigid_alternatives(
     gy = gram[:, own] @ c_own  # the columns against the torque the change makes
     yy = float(c_own @ gram[np.ix_(own, own)] @ c_own)
     if yy <= 0:
-        return f
-
-    def left(span: list[int]) -> float:
-        if not span:
-            return 1.0
-        g = gy[span]
-        explained = float(g @ np.linalg.lstsq(gram[np.ix_(span, span)], g, rcond=1e-12)[0])
-        return float(np.sqrt(max(1.0 - explained / yy, 0.0)))
-
-    alone = left(others)
+        return []
+    alone = _share_outside(gram, gy, yy, others)
     alts: list[dict[str, Any]] = []
     for k, c in enumerate(alternatives):
         cols = list(range(offsets[k], offsets[k + 1]))
-        if c.effect == "rigid_body":
-            continue
-        share = left(others + cols)
-        if not _explains(share, alone, selection.confound_independence):
+        share = _share_outside(gram, gy, yy, others + cols)
+        if c.effect == "rigid_body" or not _explains(share, alone, selection.confound_independence):
             continue
         alt: dict[str, Any] = {"effect": c.effect, "target": c.target, "independence": share}
         if len(cols) == 1:  # the coefficient that makes the same torque, a linear map of the change's
@@ -1123,18 +1107,10 @@ def _rigid_alternatives(
             coef = float(row @ c_own)
             if not float(c.lower[0]) <= coef <= float(c.upper[0]):
                 continue  # outside its physical range: not this effect
-            alt["value"] = 1.0 + coef if c.effect == "torque_gain" else coef
-            alt["std"] = float(np.sqrt(max(float(row @ fit.cov[np.ix_(own, own)] @ row), 0.0)))
+            var = float(row @ fit.cov[np.ix_(own, own)] @ row)
+            alt["value"], alt["std"] = c.value(np.array([coef]), np.array([[var]]), np.zeros((0, 0, 1)))
         alts.append(alt)
-    if not alts:
-        return f
-    alts.sort(key=lambda a: a["independence"])
-    sep = "; ".join(
-        dict.fromkeys(
-            _separation("rigid_body", a["effect"], "rigid_body", f"{a['effect']} {a['target']}") for a in alts
-        )
-    )
-    return dataclasses.replace(f, confounded_with=alts, separate_by=sep)
+    return alts
 
 
 def _explains(share: float, alone: float, threshold: float) -> bool:
@@ -1169,13 +1145,17 @@ def _absorbed_value(
 
 def _share_left(gram: np.ndarray, head: int, span: list[int]) -> float:
     """Share (in norm) of column `head` outside the span of columns `span`, from their Gram matrix."""
-    hh = float(gram[head, head])
+    return _share_outside(gram, gram[:, head], float(gram[head, head]), span)
+
+
+def _share_outside(gram: np.ndarray, g: np.ndarray, hh: float, span: list[int]) -> float:
+    """Share (in norm) of a vector y outside the span of columns `span`, from the columns' Gram matrix, their
+    products with y (`g`, one per column of `gram`) and y's squared norm `hh`."""
     if hh <= 0:
         return 0.0
     if not span:
         return 1.0
-    g = gram[span, head]
-    explained = float(g @ np.linalg.lstsq(gram[np.ix_(span, span)], g, rcond=1e-12)[0])
+    explained = float(g[span] @ np.linalg.lstsq(gram[np.ix_(span, span)], g[span], rcond=1e-12)[0])
     return float(np.sqrt(max(1.0 - explained / hh, 0.0)))
 
 

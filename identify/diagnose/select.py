@@ -486,7 +486,6 @@ def select_effects(
     rejected: set[str] = set()
     while len(chosen) < options.max_findings:
         now = [c for c in pool if c.key not in rejected]
-        follow = [c for c in follow if c.key not in rejected]
         best, admissible = admissible_among(follow, other_shapes) if follow else admissible_among(now)
         if best is None and follow:  # not without the ramp check in the same step
             best, admissible = admissible_among([c for c in now if c.key not in {f.key for f in follow}])

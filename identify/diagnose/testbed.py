@@ -27,7 +27,6 @@ enters as they write it (`lab_model_table`).
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -94,6 +93,11 @@ class Injected:
     joint: str
     size: float
     extra: float = 0.0
+
+    @property
+    def value(self) -> float:
+        """Its size as the diagnosis reports the effect's headline value (a gain's is 1 + size)."""
+        return 1.0 + self.size if self.effect == "torque_gain" else self.size
 
     def __post_init__(self) -> None:
         if self.effect not in IN_VOCABULARY + OUT_OF_VOCABULARY:
@@ -617,8 +621,7 @@ def _z(first: Any, truth: Injected | None) -> float | None:
     injected size; a gain's is 1 + size) and has a std; None otherwise."""
     if first is None or truth is None or first.effect != truth.effect or not (first.std and np.isfinite(first.std)):
         return None
-    size = 1.0 + truth.size if truth.effect == "torque_gain" else truth.size
-    return float((first.value - size) / first.std)
+    return float((first.value - truth.value) / first.std)
 
 
 def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
@@ -812,17 +815,14 @@ def diagnose_lab_model(
     kwargs.setdefault("band_hz", 5.0)
     dg = diagnose(plant, [d for d, _ in records[:-1]], [records[-1][0]], rng=np.random.default_rng(0), **kwargs)
     val, (q, dq, ddq) = records[-1]
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "calibrated.xml"
-        path.write_text(dg.calibrated_xml)
-        model = mujoco.MjModel.from_xml_path(str(path))
+    model = mujoco.MjModel.from_xml_string(dg.calibrated_xml)  # the two-link arm's file names no asset
     # what the sensors report of the plant's torque, against what the calibrated MJCF says they report at the
     # angles the encoders read
     q_seen, reported = _sensed(plant.joint_names, sensor, val.time, q, author_torque(params, q, dq, ddq))
     error = mjcf_measured_torque(model, val.time, q_seen, dq, ddq) - reported
     truth = {
         name: {"coulomb_friction": params[f"cf{j + 1}"] * np.pi / 2, "viscous_friction": params[f"b{j + 1}"]}
-        | {e.effect: 1.0 + e.size if e.effect == "torque_gain" else e.size for e in sensor if e.joint == name}
+        | {e.effect: e.value for e in sensor if e.joint == name}
         for j, name in enumerate(plant.joint_names)
     }
     return plant, dg, {"model_error": np.sqrt(np.mean(error**2, axis=0)), "truth": truth}
