@@ -471,7 +471,7 @@ def _findings_markdown(result: Diagnosis, units: dict[str, dict[str, str]]) -> s
             u = units[j]
             err = "-" if sim is None else f"{sim:.4g} {u['angle']}"
             judged = m.get("torque_rms_judged", {}).get(j)
-            judged_text = "-" if judged is None else f"{judged:.4g} {u['torque']}"
+            judged_text = "-" if judged is None or not np.isfinite(judged) else f"{judged:.4g} {u['torque']}"
             lines.append(f"| {model} | {j} | {v:.4g} {u['torque']} | {judged_text} | {err} |")
     return "\n".join(lines)
 
@@ -511,7 +511,10 @@ def _summary(payload: dict[str, Any]) -> str:
         sim = ", ".join(f"{j} {v:.4f} {unit(j, 'angle')}" for j, v in m.get("simulation_error", {}).items())
         lines.append(f"  {model:18s} torque RMS: {tau}; simulation error: {sim or '-'}")
         if "torque_rms_judged" in m:
-            judged = ", ".join(f"{j} {v:.4f} {unit(j, 'torque')}" for j, v in m["torque_rms_judged"].items())
+            judged = ", ".join(
+                f"{j} {v:.4f} {unit(j, 'torque')}" if v is not None and np.isfinite(v) else f"{j} - (none judged)"
+                for j, v in m["torque_rms_judged"].items()
+            )
             lines.append(f"  {'':18s} on the torques the verdict judges: {judged}")
     spread = payload.get("info", {}).get("prediction_std")
     if spread and any(v > 0 for v in spread.values()):  # no effect found: nothing was fitted

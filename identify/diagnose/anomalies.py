@@ -146,13 +146,17 @@ def _saturation(tau: np.ndarray) -> dict[str, float] | None:
     about 2.4 times as long in its top bin as in the next one). A clip is named when the top level holds
     `SATURATION_RATIO` times the next one, at least `SATURATED_FRACTION` of the rows, in a run of at least
     `SATURATION_RUN` rows or in `SATURATION_EPISODES` separate runs (a fast controller's command touches its
-    limit for a row or two at a time, again and again, as in the DFKI C.0 swing-up logged at ~600 Hz).
+    limit for a row or two at a time, again and again, as in the DFKI C.0 swing-up logged at ~600 Hz). A torque
+    that never leaves its top two levels is not clipped but constant (a joint held at rest: an SO-ARM100's jaw
+    held by its feed-forward read 0.006 N m on every row, and was called saturated).
     """
     mag = np.abs(tau)
     peak = float(np.max(mag))
     if peak == 0:
         return None
     tol = max(1.5 * _quantum(tau), 1e-3 * peak)
+    if np.ptp(tau) <= 2 * tol:
+        return None  # never leaves its top levels: a torque held constant (a joint at rest), no swing to clip
     top = mag >= peak - tol
     below = int(np.count_nonzero((mag < peak - tol) & (mag >= peak - 2 * tol)))
     runs = _runs(top)

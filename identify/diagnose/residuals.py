@@ -168,10 +168,11 @@ def analyse_residual(
         power = np.convolve(r[:, j] ** 2, np.ones(win) / win, mode="valid")
         k = int(np.argmax(power))
         fitted = r[:, j] if s.used is None else r[s.used[:, j], j]  # not the torques left out of the fit
-        rms = float(np.sqrt(np.mean(fitted**2)))
+        # NaN (null in the JSON) for a joint with no torque fitted (one that never moves, held by its friction)
+        rms = float(np.sqrt(np.mean(fitted**2))) if fitted.size else float("nan")
         out[name] = {
             "rms": rms,
-            "mean": float(np.mean(fitted)),
+            "mean": float(np.mean(fitted)) if fitted.size else float("nan"),
             "noise_floor": float(floor[j]),
             "rms_over_noise": rms / max(float(floor[j]), 1e-12),
             "dominant_hz": [float(f[i]) for i in top],
