@@ -79,6 +79,13 @@ def _quantum(x: np.ndarray) -> float:
     return float(np.min(steps)) if steps.size else 0.0
 
 
+def _noise(x: np.ndarray) -> float:
+    """Robust std of the sample-to-sample noise of `x`: from the median absolute second difference, which a
+    smooth motion sampled fast leaves near zero (white noise of std s has second differences of std s sqrt 6)."""
+    d2 = np.diff(x, 2)
+    return float(np.median(np.abs(d2 - np.median(d2))) / 0.6745 / np.sqrt(6.0)) if d2.size else 0.0
+
+
 def _span(q: np.ndarray) -> float:
     return float(np.percentile(q, 99.5) - np.percentile(q, 0.5))
 
@@ -146,32 +153,39 @@ def _saturation(tau: np.ndarray) -> dict[str, float] | None:
     about 2.4 times as long in its top bin as in the next one). A clip is named when the top level holds
     `SATURATION_RATIO` times the next one, at least `SATURATED_FRACTION` of the rows, in a run of at least
     `SATURATION_RUN` rows or in `SATURATION_EPISODES` separate runs (a fast controller's command touches its
-    limit for a row or two at a time, again and again, as in the DFKI C.0 swing-up logged at ~600 Hz). A torque
-    that never leaves its top two levels is not clipped but constant (a joint held at rest: an SO-ARM100's jaw
+    limit for a row or two at a time, again and again, as in the DFKI C.0 swing-up logged at ~600 Hz). A measured
+    torque carries noise on its plateau: a level is then at least six times its noise wide (`_noise`; a
+    Kinova Gen3 whose PD loop chattered at its 105 N m limits, read with 0.1 N m of noise, was named nothing). A
+    torque that never leaves its top two levels is not clipped but constant (a joint held at rest: an SO-ARM100's jaw
     held by its feed-forward read 0.006 N m on every row, and was called saturated).
     """
     mag = np.abs(tau)
     peak = float(np.max(mag))
     if peak == 0:
         return None
-    tol = max(1.5 * _quantum(tau), 1e-3 * peak)
-    if np.ptp(tau) <= 2 * tol:
-        return None  # never leaves its top levels: a torque held constant (a joint at rest), no swing to clip
-    top = mag >= peak - tol
-    below = int(np.count_nonzero((mag < peak - tol) & (mag >= peak - 2 * tol)))
-    runs = _runs(top)
-    run, episodes = int(np.max(runs, initial=0)), len(runs)
-    if (
-        np.mean(top) >= SATURATED_FRACTION
-        and (run >= SATURATION_RUN or episodes >= SATURATION_EPISODES)
-        and np.count_nonzero(top) >= SATURATION_RATIO * max(below, 1)
-    ):
-        return {
-            "level_Nm": peak,
-            "fraction": float(np.mean(top)),
-            "longest_run": float(run),
-            "episodes": float(episodes),
-        }
+    exact = max(1.5 * _quantum(tau), 1e-3 * peak)
+    # a clip measured through noise of std s is a pile-up within about 3 s of the limit, above and below it: a top
+    # level 6 s wide holds the plateau rather than the upper half of its noise (an exact plateau, a clipped
+    # command, is read at the fine level first: the noise of the rest of the signal would blur it)
+    for tol in dict.fromkeys((exact, max(exact, 6.0 * _noise(mag)))):
+        if np.ptp(tau) <= 2 * tol or peak <= 2 * tol:
+            # never leaves its top levels (a torque held constant: a joint at rest), or noise alone: no swing to clip
+            continue
+        top = mag >= peak - tol
+        below = int(np.count_nonzero((mag < peak - tol) & (mag >= peak - 2 * tol)))
+        runs = _runs(top)
+        run, episodes = int(np.max(runs, initial=0)), len(runs)
+        if (
+            np.mean(top) >= SATURATED_FRACTION
+            and (run >= SATURATION_RUN or episodes >= SATURATION_EPISODES)
+            and np.count_nonzero(top) >= SATURATION_RATIO * max(below, 1)
+        ):
+            return {
+                "level_Nm": peak,
+                "fraction": float(np.mean(top)),
+                "longest_run": float(run),
+                "episodes": float(episodes),
+            }
     return None
 
 
