@@ -491,11 +491,11 @@ def test_the_hidden_effect_table_judges_the_value_against_its_std() -> None:
 @pytest.mark.skipif(not (SHARED_ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
 @pytest.mark.parametrize("arm", list(ARMS))
 def test_hidden_effects_on_a_menagerie_arm_are_named_within_their_std(arm: str, tmp_path: Path) -> None:
-    """A 6- and a 7-joint arm of Menagerie, its servos turned into motors of the same limits, under the testbed's
-    own controller: clean data give no discrepancy, and each hidden effect (base to wrist) is named first, within
-    3 std and 10 % of the truth where it is the first finding itself (seed 0; bench/diagnose.md counts the coverage
-    over four seeds). A small armature at the last wrist joint may come first as its torque gain, with the armature
-    named beside it: that joint's torque is nearly all inertia."""
+    """6- and 7-joint arms of Menagerie (the Gen3's joints 1, 3, 5 and 7 continuous), servos turned into motors of
+    the same limits, under the testbed's own controller: clean data give no discrepancy, and each hidden effect (base
+    to wrist) is named first, within 3 std and 10 % of the truth where it is the first finding itself (seed 0;
+    bench/diagnose.md counts the coverage over four seeds). A small armature at the last wrist joint may come first
+    as its torque gain, with the armature named beside it: that joint's torque is nearly all inertia."""
     source = SHARED_ROBOTS / f"{arm}.xml"
     path = torque_driven(source, tmp_path)
     model, original = mujoco.MjModel.from_xml_path(str(path)), mujoco.MjModel.from_xml_path(str(source))

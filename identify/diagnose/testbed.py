@@ -164,6 +164,17 @@ ARMS: dict[str, TestbedSystem] = {
         center=(0.0, -0.3, 0.0, -2.0, 0.0, 2.0, 0.8),
         rk4=True,
     ),
+    # continuous joints 1, 3, 5 and 7 (no range); the light ones get gains explicit integration keeps stable
+    "gen3": TestbedSystem(
+        (0.4, 0.3, 0.4, 0.4, 0.5, 0.5, 0.5),
+        (20.0, 600.0, 10.0, 200.0, 5.0, 40.0, 3.0),
+        (1.0, 30.0, 0.5, 10.0, 0.25, 2.0, 0.15),
+        (0.1, 0.1, 0.1, 0.1, 0.03, 0.03, 0.03),
+        0.01,
+        max_hz=1.0,
+        center=(0.0, 0.5, 0.0, 1.5, 0.0, 1.0, 0.0),
+        rk4=True,
+    ),
 }
 
 
@@ -173,6 +184,7 @@ def arm_cases(arm: str) -> list[list[Injected]]:
     j = {
         "ur5e": ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"),
         "panda_nohand": ("joint2", "joint4", "joint6", "joint5", "joint7"),
+        "gen3": ("joint_2", "joint_4", "joint_6", "joint_5", "joint_7"),
     }[arm]
     big = 1.0 if arm == "ur5e" else 0.5  # the UR5e's joints carry about twice the Panda's torques
     return [
