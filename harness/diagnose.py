@@ -211,7 +211,8 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
-    anomalies = find_anomalies(datasets, plant.hinge)  # at the full rate: thinning would blur a stuck or clipped torque
+    # at the full rate: thinning would blur a stuck or clipped torque
+    anomalies = find_anomalies(datasets, plant.hinge, plant.q_range)
     datasets, excluded = _without_stuck_torques(datasets, anomalies)
     if excluded:
         stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")

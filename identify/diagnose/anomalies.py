@@ -1,11 +1,12 @@
-"""Data anomalies named before anything is fitted: a joint that never moves, a torque stuck at zero, a
-saturated torque.
+"""Data anomalies named before anything is fitted: a joint that never moves, a joint that rests at its range
+limit, a torque stuck at zero, a saturated torque.
 
 Each one changes what a file can say: a joint that never moves in a file carries no information on its own
 friction or inertia there (its columns are zero, and the file only constrains the others); a torque stuck at
 zero on an actuated joint is a dead sensor or driver, not a model error; a torque that sits on a plateau at
 its largest value is clipped (checked on the measured torque and, where logged, on the commanded one: a
-controller that clips its command no longer tracks, and the measured torque is then all the motor gave).
+controller that clips its command no longer tracks, and the measured torque is then all the motor gave); a
+joint pressed into the end of its range takes the stop's force there, which no model of the diagnosis holds.
 """
 
 from __future__ import annotations
@@ -18,7 +19,15 @@ import numpy as np
 
 from envs.dataset import Dataset
 
-__all__ = ["Anomaly", "describe_outside", "find_anomalies", "moving_joints", "outside_training", "still_joints"]
+__all__ = [
+    "Anomaly",
+    "at_limit",
+    "describe_outside",
+    "find_anomalies",
+    "moving_joints",
+    "outside_training",
+    "still_joints",
+]
 
 STILL_RANGE = 0.01  # a hinge whose angle spans less than this in a file never moves there [rad]
 STILL_SLIDE_RANGE = 1e-3  # ... a slide whose position spans less than this [m]
@@ -27,6 +36,11 @@ SATURATED_FRACTION = 0.002  # share of rows on the plateau at the largest |torqu
 SATURATION_RUN = 3  # ... in a run of at least this many consecutive rows,
 SATURATION_EPISODES = 3  # ... or reached again and again: in at least this many separate runs
 SATURATION_RATIO = 8.0  # ... and this many times the rows of the level just below it
+AT_LIMIT_SHARE = 0.01  # a range end within this share of the range (or `AT_LIMIT_MIN`) is where the stop acts
+AT_LIMIT_MIN = 1e-3  # [rad, or m x 0.1 on a slide]: the least such distance (filtering rounds a resting angle)
+AT_LIMIT_FRACTION = 0.01  # a joint at its range limit on this share of a file's rows is named
+PRESSED_MAX = 0.05  # [rad, or m x 0.1]: beyond its range by more, a joint is not pressed into a stop (the range is
+# not the joint's: a plant without limits); as `envs.measured` reads a log (a hinge whole turns off beyond it)
 
 
 @dataclass(frozen=True)
@@ -34,7 +48,7 @@ class Anomaly:
     """One anomaly of one file.
 
     Attributes:
-        kind: `joint_never_moves`, `torque_stuck_at_zero` or `torque_saturated`.
+        kind: `joint_never_moves`, `joint_at_limit`, `torque_stuck_at_zero` or `torque_saturated`.
         source: the file.
         joint: the joint.
         detail: the numbers it was named on.
@@ -51,6 +65,7 @@ class Anomaly:
     def describe(self) -> str:
         what = {
             "joint_never_moves": "never moves",
+            "joint_at_limit": "rests at the end of its range",
             "torque_stuck_at_zero": "reports a torque stuck at zero",
             "torque_saturated": "has a saturated torque",
         }[self.kind]
@@ -59,6 +74,10 @@ class Anomaly:
             "joint_never_moves": (
                 ": its friction there is static, anywhere within its breakaway, which no function of its speed "
                 "predicts; a torque error of that size on it there says nothing for or against a friction model"
+            ),
+            "joint_at_limit": (
+                ": the stop's force acts there, which no model holds; those rows of its torque are left out of the "
+                "fit and the verdict"
             ),
         }.get(self.kind, "")
         return f"{Path(self.source).name}: {self.joint} {what} ({numbers}){why}"
@@ -107,15 +126,53 @@ def moving_joints(data: Dataset, hinge: np.ndarray | None = None) -> np.ndarray:
     return moving
 
 
-def find_anomalies(datasets: list[Dataset], hinge: np.ndarray | None = None) -> list[Anomaly]:
-    """Every anomaly of every file, in file then joint order (`hinge` as for `still_joints`)."""
+def at_limit(q: np.ndarray, q_range: np.ndarray, hinge: np.ndarray | None = None) -> np.ndarray:
+    """(N, nv) True where a joint is at (or pressed beyond) an end of its range: within `AT_LIMIT_SHARE` of the
+    range (at least `AT_LIMIT_MIN` rad, a tenth of that in m on a slide) inside it, or up to `PRESSED_MAX` beyond
+    it, where MuJoCo's limit force acts on the simulated joint and a real joint's stop pushes back. False on an
+    unlimited joint, and farther beyond (no stop there: the joint has none at that range).
+
+    Args:
+        q: (N, nv) joint positions; q_range: (nv, 2) the model's ranges (+-inf: unlimited).
+    """
+    q_range = np.asarray(q_range, dtype=float)
+    lo, hi = q_range[:, 0], q_range[:, 1]
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    unit = np.ones(len(lo)) if hinge is None else np.where(np.asarray(hinge, bool), 1.0, 0.1)
+    tol = np.maximum(AT_LIMIT_SHARE * np.where(finite, hi - lo, 0.0), AT_LIMIT_MIN * unit)
+    out = PRESSED_MAX * unit
+    with np.errstate(invalid="ignore"):
+        low = (q <= lo + tol) & (q >= lo - out)
+        high = (q >= hi - tol) & (q <= hi + out)
+        return (low | high) & finite  # type: ignore[no-any-return]
+
+
+def find_anomalies(
+    datasets: list[Dataset], hinge: np.ndarray | None = None, q_range: np.ndarray | None = None
+) -> list[Anomaly]:
+    """Every anomaly of every file, in file then joint order (`hinge` as for `still_joints`; `q_range`: (nv, 2)
+    the model's joint ranges, for `joint_at_limit`, None: not checked)."""
     out: list[Anomaly] = []
     for data in datasets:
         still = still_joints(data, hinge)
+        stopped = at_limit(data.q, q_range, hinge) if q_range is not None else np.zeros(data.q.shape, bool)
         for j, name in enumerate(data.joint_names):
             if j in still:
                 unit = "rad" if hinge is None or hinge[j] else "m"
                 out.append(Anomaly("joint_never_moves", data.source, name, {f"range_{unit}": _span(data.q[:, j])}))
+            if np.mean(stopped[:, j]) >= AT_LIMIT_FRACTION:
+                lo, hi = (float(v) for v in np.asarray(q_range)[j])  # type: ignore[index]
+                end = (
+                    hi if np.count_nonzero(data.q[stopped[:, j], j] >= (lo + hi) / 2) * 2 >= stopped[:, j].sum() else lo
+                )
+                out.append(
+                    Anomaly(
+                        "joint_at_limit",
+                        data.source,
+                        name,
+                        {"fraction": float(np.mean(stopped[:, j])), "limit": end},
+                    )
+                )
             if not data.actuated[j]:
                 continue
             # the torques as logged where the reader resampled them (`envs.measured`): interpolation between

@@ -29,6 +29,7 @@ from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states, state_cutoff_hz
 from identify.diagnose.anomalies import (
     Anomaly,
+    at_limit,
     describe_outside,
     find_anomalies,
     moving_joints,
@@ -590,13 +591,17 @@ def diagnose(
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     selection = selection or SelectionOptions()
-    anomalies = list(anomalies) if anomalies is not None else find_anomalies([*train, *validation], plant.hinge)
+    anomalies = (
+        list(anomalies) if anomalies is not None else find_anomalies([*train, *validation], plant.hinge, plant.q_range)
+    )
     options = dict(derivative_options or {})
     band_hz = analysis_band(band_hz, [*train, *validation], derivatives, options)
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
     for rec in [*tr, *va]:
-        moving = moving_joints(rec.data, plant.hinge)
+        # a joint in its stops on much of the record carries the stop's force there: not compared, as a still one
+        stopped = np.mean(at_limit(rec.data.q, plant.q_range, plant.hinge), axis=0) > STOPPED_SHARE
+        moving = moving_joints(rec.data, plant.hinge) & ~stopped
         if check_torque_signs:
             check_torque_columns(plant, rec.data, rec.signals, moving)
         s = rec.signals
@@ -609,12 +614,27 @@ def diagnose(
     s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
     s_va = stack_signals([r.signals for r in va])
-    held_tr = _held_by_friction(plant, s_tr, _never_moving(tr, plant.hinge))
-    held_va = _held_by_friction(plant, s_va, _never_moving(va, plant.hinge))
+    # a joint at its range limit takes the stop's force, which no column holds: left out there as well
+    held_tr = _held_by_friction(plant, s_tr, _never_moving(tr, plant.hinge)) | _near_limit(plant, s_tr)
+    held_va = _held_by_friction(plant, s_va, _never_moving(va, plant.hinge)) | _near_limit(plant, s_va)
     at_rest = {  # per joint: the share of the training rows its nominal frictionloss holds (set-valued torque)
         names[j]: float(np.mean(held_tr[:, j])) for j in range(plant.nv) if held_tr[:, j].any()
     }
     s_tr, s_va = _left_out(s_tr, held_tr), _left_out(s_va, held_va)
+    for what, sig, recs in (("training", s_tr, tr), ("validation", s_va, va)):
+        if sig.n_used == 0:
+            files = ", ".join(Path(r.data.source).name for r in recs)
+            in_these = {r.data.source for r in recs}
+            why = "; ".join(
+                a.describe().split(": ", 1)[1].split(")")[0] + ")"
+                for a in anomalies
+                if a.source in in_these and a.kind in ("joint_at_limit", "joint_never_moves")
+            )
+            raise DataError(
+                f"{files}: no {what} torque is left to judge: on every row each joint is at the end of its range, "
+                f"held by its friction at rest, or never moves ({why or 'no anomaly named'}); give files in which "
+                "the joints move clear of their stops"
+            )
     floor = _noise_floor(tr, unfitted) * plant.actuated
     weights = _weights(plant, floor)
 
@@ -1240,6 +1260,7 @@ def _left_out(s: Signals, rows: np.ndarray) -> Signals:
 _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle within a few)
 
 
+STOPPED_SHARE = 0.25  # a joint at its range limit on more than this share of a record is not checked for its torque
 SLIDING_FRACTION = 0.1  # below this share of a joint's RMS speed in a record, its Coulomb friction is not fitted
 _SIGN_FRICTION = frozenset({"coulomb_friction", "load_friction"})  # friction laws of sign(dq)
 _LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "stribeck_friction", "backlash"})  # told apart below it
@@ -1272,6 +1293,28 @@ def _held_by_friction(plant: Plant, s: Signals, still: np.ndarray) -> np.ndarray
     """
     held = _slow_rows(s, ideal_friction(plant.frictionloss, plant.friction_speed))
     return held | (still[s.record] & (np.asarray(plant.frictionloss) > 0))
+
+
+def _near_limit(plant: Plant, s: Signals) -> np.ndarray:
+    """(N, nv) True where a joint is at an end of its range (`anomalies.at_limit`), and on the rows within one
+    period of its record's state-filter cut-off of those: the stop's force is in no model, and the filtered
+    acceleration spreads its impulse over that long around the contact (a testbed arm pressed into its stops
+    named a time delay at its bound from the rows beside them)."""
+    near = at_limit(s.q, plant.q_range, plant.hinge)
+    if not near.any():
+        return near
+    cutoff = dict(s.state_hz)
+    out = near.copy()
+    for r in np.unique(s.record):
+        rows = np.flatnonzero(s.record == r)
+        hz = cutoff.get(int(r)) or s.band_hz
+        if not hz or rows.size < 2:
+            continue
+        k = int(np.ceil(1.0 / (hz * float(np.median(np.diff(s.time[rows]))))))
+        kernel = np.ones(2 * k + 1)
+        for j in np.flatnonzero(near[rows].any(axis=0)):
+            out[rows, j] = np.convolve(near[rows, j].astype(float), kernel, mode="same") > 0
+    return out
 
 
 def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.ndarray | None:
