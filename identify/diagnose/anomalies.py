@@ -36,7 +36,7 @@ SATURATED_FRACTION = 0.002  # share of rows on the plateau at the largest |torqu
 SATURATION_RUN = 3  # ... in a run of at least this many consecutive rows,
 SATURATION_EPISODES = 3  # ... or reached again and again: in at least this many separate runs
 SATURATION_RATIO = 8.0  # ... and this many times the rows of the level just below it
-AT_LIMIT_SHARE = 0.01  # a range end within this share of the range (or `AT_LIMIT_MIN`) is where the stop acts
+AT_LIMIT_SHARE = 0.002  # a range end within this share of the range (or `AT_LIMIT_MIN`) is where the stop acts
 AT_LIMIT_MIN = 1e-3  # [rad, or m x 0.1 on a slide]: the least such distance (filtering rounds a resting angle)
 AT_LIMIT_FRACTION = 0.01  # a joint at its range limit on this share of a file's rows is named
 PRESSED_MAX = 0.05  # [rad, or m x 0.1]: beyond its range by more, a joint is not pressed into a stop (the range is
@@ -126,20 +126,33 @@ def moving_joints(data: Dataset, hinge: np.ndarray | None = None) -> np.ndarray:
     return moving
 
 
-def at_limit(q: np.ndarray, q_range: np.ndarray, hinge: np.ndarray | None = None) -> np.ndarray:
+def at_limit(
+    q: np.ndarray, q_range: np.ndarray, hinge: np.ndarray | None = None, margin: np.ndarray | None = None
+) -> np.ndarray:
     """(N, nv) True where a joint is at (or pressed beyond) an end of its range: within `AT_LIMIT_SHARE` of the
-    range (at least `AT_LIMIT_MIN` rad, a tenth of that in m on a slide) inside it, or up to `PRESSED_MAX` beyond
-    it, where MuJoCo's limit force acts on the simulated joint and a real joint's stop pushes back. False on an
-    unlimited joint, and farther beyond (no stop there: the joint has none at that range).
+    range (at least `AT_LIMIT_MIN` rad, a tenth of that in m on a slide, and at least its `margin`) inside it, or
+    up to `PRESSED_MAX` beyond it, where MuJoCo's limit force acts on the simulated joint and a real joint's stop
+    pushes back. False on an unlimited joint, and farther beyond (no stop there: the joint has none at that range).
 
     Args:
         q: (N, nv) joint positions; q_range: (nv, 2) the model's ranges (+-inf: unlimited).
+        margin: (nv,) the joints' limit `margin` (MuJoCo's limit acts that far inside each end): the distance
+            inside an end is at least that.
+
+    Raises:
+        ValueError: q_range is not one (low, high) row per column of q.
     """
     q_range = np.asarray(q_range, dtype=float)
+    if q_range.shape != (q.shape[1], 2):
+        raise ValueError(
+            f"q_range has shape {q_range.shape}; one (low, high) row per joint, ({q.shape[1]}, 2), expected"
+        )
     lo, hi = q_range[:, 0], q_range[:, 1]
     finite = np.isfinite(lo) & np.isfinite(hi)
     unit = np.ones(len(lo)) if hinge is None else np.where(np.asarray(hinge, bool), 1.0, 0.1)
     tol = np.maximum(AT_LIMIT_SHARE * np.where(finite, hi - lo, 0.0), AT_LIMIT_MIN * unit)
+    if margin is not None:
+        tol = np.maximum(tol, np.asarray(margin, dtype=float))
     out = PRESSED_MAX * unit
     with np.errstate(invalid="ignore"):
         low = (q <= lo + tol) & (q >= lo - out)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import optimize
+from scipy import ndimage, optimize
 
 from dynamics.base import base_parameters
 from dynamics.errors import DataError
@@ -614,19 +614,28 @@ def diagnose(
     s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
     s_va = stack_signals([r.signals for r in va])
-    # a joint at its range limit takes the stop's force, which no column holds: left out there as well
-    held_tr = _held_by_friction(plant, s_tr, _never_moving(tr, plant.hinge)) | _near_limit(plant, s_tr)
-    held_va = _held_by_friction(plant, s_va, _never_moving(va, plant.hinge)) | _near_limit(plant, s_va)
+    held_tr = _held_by_friction(plant, s_tr, _never_moving(tr, plant.hinge))
+    held_va = _held_by_friction(plant, s_va, _never_moving(va, plant.hinge))
     at_rest = {  # per joint: the share of the training rows its nominal frictionloss holds (set-valued torque)
         names[j]: float(np.mean(held_tr[:, j])) for j in range(plant.nv) if held_tr[:, j].any()
     }
-    s_tr, s_va = _left_out(s_tr, held_tr), _left_out(s_va, held_va)
+    # a joint at its range limit takes the stop's force, which no column holds: left out there as well
+    stopped_tr, stopped_va = _near_limit(plant, s_tr), _near_limit(plant, s_va)
+    at_stops = {  # per joint: the share of the training rows left out at or beside its range limits
+        names[j]: float(np.mean(stopped_tr[:, j])) for j in range(plant.nv) if stopped_tr[:, j].any()
+    }
+    s_tr, s_va = _left_out(s_tr, held_tr | stopped_tr), _left_out(s_va, held_va | stopped_va)
     for what, sig, recs in (("training", s_tr, tr), ("validation", s_va, va)):
-        if sig.n_used == 0:
+        if sig.used is not None and not np.any(sig.used[:, np.asarray(plant.actuated, bool)]):
             files = ", ".join(Path(r.data.source).name for r in recs)
             in_these = {r.data.source for r in recs}
             why = "; ".join(
-                a.describe().split(": ", 1)[1].split(")")[0] + ")"
+                f"{a.joint} {'at the end of its range on' if a.kind == 'joint_at_limit' else 'still in'} "
+                + (
+                    f"{a.detail['fraction']:.0%} of {Path(a.source).name}"
+                    if a.kind == "joint_at_limit"
+                    else Path(a.source).name
+                )
                 for a in anomalies
                 if a.source in in_these and a.kind in ("joint_at_limit", "joint_never_moves")
             )
@@ -662,6 +671,9 @@ def diagnose(
         full = np.zeros((len(tr), plant.nv))
         full[:, plant.actuated] = offsets_by_record
         full[unfitted] = np.nan  # no offset is estimated where no torque is fitted
+        if s_tr.used is not None:  # nor where every row of a record's joint was left out (at rest, in its stops)
+            for i in range(len(tr)):
+                full[i, ~np.any(s_tr.used[s_tr.record == i], axis=0)] = np.nan
         offsets_by_record = full
     base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
     sw = np.sqrt(weights)
@@ -799,6 +811,7 @@ def diagnose(
             "left_out_of_fit": left_out,
             "left_out_sticking": sticking,
             "held_by_nominal_friction": at_rest,
+            "left_out_at_limit": at_stops,
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
@@ -838,6 +851,11 @@ def diagnose(
             f"training rows, where the nominal frictionloss {float(plant.frictionloss[names.index(joint)]):.4g} N m "
             "holds it with any torque within its breakaway: those torques are left out of the fit and the verdict"
             for joint, share in at_rest.items()
+        ]
+        + [
+            f"{joint}: at the end of its range, or within half a state-filter period of it, in {share:.1%} of the "
+            "training rows, where the stop's force acts: those torques are left out of the fit and the verdict"
+            for joint, share in at_stops.items()
         ]
         + [
             f"{Path(d['source']).name}: {d['joint']}'s torque left out of the fit there (the joint never moves; "
@@ -1296,11 +1314,11 @@ def _held_by_friction(plant: Plant, s: Signals, still: np.ndarray) -> np.ndarray
 
 
 def _near_limit(plant: Plant, s: Signals) -> np.ndarray:
-    """(N, nv) True where a joint is at an end of its range (`anomalies.at_limit`), and on the rows within one
-    period of its record's state-filter cut-off of those: the stop's force is in no model, and the filtered
-    acceleration spreads its impulse over that long around the contact (a testbed arm pressed into its stops
-    named a time delay at its bound from the rows beside them)."""
-    near = at_limit(s.q, plant.q_range, plant.hinge)
+    """(N, nv) True where a joint is at an end of its range (`anomalies.at_limit`, with the joint's `margin`), and
+    on the rows within half a period of its record's state-filter cut-off of those: the stop's force is in no
+    model, and the filtered acceleration spreads its impulse around the contact (a testbed arm pressed into its
+    stops named a time delay at its bound from the rows beside them)."""
+    near = at_limit(s.q, plant.q_range, plant.hinge, margin=plant.mj_model.jnt_margin[plant.mj_model.dof_jntid])
     if not near.any():
         return near
     cutoff = dict(s.state_hz)
@@ -1310,10 +1328,9 @@ def _near_limit(plant: Plant, s: Signals) -> np.ndarray:
         hz = cutoff.get(int(r)) or s.band_hz
         if not hz or rows.size < 2:
             continue
-        k = int(np.ceil(1.0 / (hz * float(np.median(np.diff(s.time[rows]))))))
-        kernel = np.ones(2 * k + 1)
+        k = int(np.ceil(0.5 / (hz * float(np.median(np.diff(s.time[rows]))))))
         for j in np.flatnonzero(near[rows].any(axis=0)):
-            out[rows, j] = np.convolve(near[rows, j].astype(float), kernel, mode="same") > 0
+            out[rows, j] = ndimage.binary_dilation(near[rows, j], structure=np.ones(2 * k + 1, bool))
     return out
 
 
