@@ -465,6 +465,8 @@ def test_a_joint_pressed_into_its_stop_is_named_and_those_rows_are_left_out(tmp_
     assert clean.verdict == "no_discrepancy" and clean.findings == [], [f.name for f in clean.findings]
     stopped = {(Path(a["source"]).name, a["joint"]) for a in clean.anomalies if a["kind"] == "joint_at_limit"}
     assert stopped == {("testbed_train", "shoulder"), ("testbed_validation", "shoulder")}
+    # reported as the stop's, not as friction's (the arm has no frictionloss): it was under held_by_nominal_friction
+    assert clean.info["held_by_nominal_friction"] == {} and 0.05 < clean.info["left_out_at_limit"]["shoulder"] < 0.3
     _, viscous = diagnose_case(
         "stoparm", [Injected("viscous_friction", "elbow", 0.03)], 1, mjcf=path, settings=settings
     )
