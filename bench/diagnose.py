@@ -236,15 +236,12 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
                 "held_out": Path(held.source).name,
                 "torque_rms": rms,
                 "best_authors": best.tolist(),
-                "wins": [bool(c <= b) for c, b in zip(rms["calibrated"], best, strict=True)],
+                "wins": _at_most(rms["calibrated"], best),
                 "both_filtered": both,
                 "demeaned": {k: v for k, v in demeaned.items() if k == "calibrated" or k in authors},
-                "wins_both_filtered": [
-                    bool(c <= b)
-                    for c, b in zip(both["calibrated"], np.min([both[a] for a in authors], axis=0), strict=True)
-                ],
-                "reachable_in_sample": [bool(c <= b) for c, b in zip(rms["lab_form_all"], best, strict=True)],
-                "calibrated_in_sample": [bool(c <= b) for c, b in zip(rms["calibrated_all"], best, strict=True)],
+                "wins_both_filtered": _at_most(both["calibrated"], np.min([both[a] for a in authors], axis=0)),
+                "reachable_in_sample": _at_most(rms["lab_form_all"], best),
+                "calibrated_in_sample": _at_most(rms["calibrated_all"], best),
                 "three_files": three,
                 "verdict": dg.verdict,
                 "outside_training": [
@@ -268,6 +265,11 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
     return {"session": session, "authors": list(authors), "joints": list(plant.joint_names), "splits": splits}
 
 
+def _at_most(values: Any, best: Any) -> list[bool]:
+    """Per joint: whether a model's RMS is at most the best lab model's (both (nv,))."""
+    return [bool(c <= b) for c, b in zip(values, best, strict=True)]
+
+
 def _yes_no(flags: list[bool]) -> str:
     return " / ".join("yes" if w else "**no**" for w in flags)
 
@@ -287,8 +289,7 @@ def _reading_markdown(table: dict[str, Any], key: str, intro: str) -> list[str]:
         r = s[key]
         cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
         best = np.min([r[m] for m in a], axis=0)
-        wins = [bool(c <= b) for c, b in zip(r["calibrated"], best, strict=True)]
-        lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(wins)} |")
+        lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(_at_most(r['calibrated'], best))} |")
     return lines
 
 

@@ -145,6 +145,13 @@ class Plant:
         return np.asarray(m.jnt_type[m.dof_jntid] == int(mujoco.mjtJoint.mjJNT_HINGE))
 
     @property
+    def limit_margin(self) -> np.ndarray:
+        """(nv,) each limited joint's `margin` (>= 0; 0 on an unlimited joint): MuJoCo's limit force acts that far
+        inside each end of its range (hinges and slides only, so joint j is dof j)."""
+        limited = np.isfinite(self.q_range).all(axis=1)
+        return np.where(limited, np.maximum(self.mj_model.jnt_margin, 0.0), 0.0)  # type: ignore[no-any-return]
+
+    @property
     def torque_units(self) -> tuple[str, ...]:
         """(nv,) the unit of each joint's torque: N m on a hinge, N on a slide."""
         return tuple("N m" if h else "N" for h in self.hinge)

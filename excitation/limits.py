@@ -130,9 +130,9 @@ def limits_for(
     """
     n = plant.nv
     lo, hi = plant.q_range[:, 0].copy(), plant.q_range[:, 1].copy()
-    # a limit's margin: MuJoCo's limit force acts within that distance of the range's end (hinges and slides
-    # only, so joint j is dof j); a negative one lets the joint past its range, which the design does not use
-    margin = np.where(np.isfinite(lo) & np.isfinite(hi), np.maximum(plant.mj_model.jnt_margin, 0.0), 0.0)
+    # a limit's margin: MuJoCo's limit force acts within that distance of the range's end; a negative one lets the
+    # joint past its range, which the design does not use
+    margin = plant.limit_margin
     if np.any(2 * margin >= hi - lo):
         j = int(np.argmax(2 * margin - (hi - lo)))
         raise ModelError(

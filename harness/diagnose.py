@@ -212,7 +212,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
     # at the full rate: thinning would blur a stuck or clipped torque
-    anomalies = find_anomalies(datasets, plant.hinge, plant.q_range)
+    anomalies = find_anomalies(datasets, plant.hinge, plant.q_range, plant.limit_margin)
     datasets, excluded = _without_stuck_torques(datasets, anomalies)
     if excluded:
         stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")

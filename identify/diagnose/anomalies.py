@@ -161,23 +161,25 @@ def at_limit(
 
 
 def find_anomalies(
-    datasets: list[Dataset], hinge: np.ndarray | None = None, q_range: np.ndarray | None = None
+    datasets: list[Dataset],
+    hinge: np.ndarray | None = None,
+    q_range: np.ndarray | None = None,
+    margin: np.ndarray | None = None,
 ) -> list[Anomaly]:
     """Every anomaly of every file, in file then joint order (`hinge` as for `still_joints`; `q_range`: (nv, 2)
-    the model's joint ranges, for `joint_at_limit`, None: not checked)."""
+    the model's joint ranges and `margin` their limits' margins, for `joint_at_limit` (`at_limit`), None: not
+    checked)."""
     out: list[Anomaly] = []
     for data in datasets:
         still = still_joints(data, hinge)
-        stopped = at_limit(data.q, q_range, hinge) if q_range is not None else np.zeros(data.q.shape, bool)
+        stopped = at_limit(data.q, q_range, hinge, margin) if q_range is not None else np.zeros(data.q.shape, bool)
         for j, name in enumerate(data.joint_names):
             if j in still:
                 unit = "rad" if hinge is None or hinge[j] else "m"
                 out.append(Anomaly("joint_never_moves", data.source, name, {f"range_{unit}": _span(data.q[:, j])}))
             if np.mean(stopped[:, j]) >= AT_LIMIT_FRACTION:
                 lo, hi = (float(v) for v in np.asarray(q_range)[j])  # type: ignore[index]
-                end = (
-                    hi if np.count_nonzero(data.q[stopped[:, j], j] >= (lo + hi) / 2) * 2 >= stopped[:, j].sum() else lo
-                )
+                end = hi if np.median(data.q[stopped[:, j], j]) >= (lo + hi) / 2 else lo  # where most rows rest
                 out.append(
                     Anomaly(
                         "joint_at_limit",

@@ -591,16 +591,16 @@ def diagnose(
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     selection = selection or SelectionOptions()
-    anomalies = (
-        list(anomalies) if anomalies is not None else find_anomalies([*train, *validation], plant.hinge, plant.q_range)
-    )
+    if anomalies is None:
+        anomalies = find_anomalies([*train, *validation], plant.hinge, plant.q_range, plant.limit_margin)
+    anomalies = list(anomalies)
     options = dict(derivative_options or {})
     band_hz = analysis_band(band_hz, [*train, *validation], derivatives, options)
     tr = _records(plant, train, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
     for rec in [*tr, *va]:
         # a joint in its stops on much of the record carries the stop's force there: not compared, as a still one
-        stopped = np.mean(at_limit(rec.data.q, plant.q_range, plant.hinge), axis=0) > STOPPED_SHARE
+        stopped = np.mean(_at_stops(plant, rec.data.q), axis=0) > STOPPED_SHARE
         moving = moving_joints(rec.data, plant.hinge) & ~stopped
         if check_torque_signs:
             check_torque_columns(plant, rec.data, rec.signals, moving)
@@ -630,12 +630,9 @@ def diagnose(
             files = ", ".join(Path(r.data.source).name for r in recs)
             in_these = {r.data.source for r in recs}
             why = "; ".join(
-                f"{a.joint} {'at the end of its range on' if a.kind == 'joint_at_limit' else 'still in'} "
-                + (
-                    f"{a.detail['fraction']:.0%} of {Path(a.source).name}"
-                    if a.kind == "joint_at_limit"
-                    else Path(a.source).name
-                )
+                f"{a.joint} at the end of its range on {a.detail['fraction']:.0%} of {Path(a.source).name}"
+                if a.kind == "joint_at_limit"
+                else f"{a.joint} still in {Path(a.source).name}"
                 for a in anomalies
                 if a.source in in_these and a.kind in ("joint_at_limit", "joint_never_moves")
             )
@@ -670,9 +667,8 @@ def diagnose(
     if m:
         full = np.zeros((len(tr), plant.nv))
         full[:, plant.actuated] = offsets_by_record
-        full[unfitted] = np.nan  # no offset is estimated where no torque is fitted
-        if s_tr.used is not None:  # nor where every row of a record's joint was left out (at rest, in its stops)
-            for i in range(len(tr)):
+        if s_tr.used is not None:  # no offset is estimated where none of a record's torque of a joint is fitted
+            for i in range(len(tr)):  # (a joint that never moves there, at rest in its friction, in its stops)
                 full[i, ~np.any(s_tr.used[s_tr.record == i], axis=0)] = np.nan
         offsets_by_record = full
     base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
@@ -1313,12 +1309,17 @@ def _held_by_friction(plant: Plant, s: Signals, still: np.ndarray) -> np.ndarray
     return held | (still[s.record] & (np.asarray(plant.frictionloss) > 0))
 
 
+def _at_stops(plant: Plant, q: np.ndarray) -> np.ndarray:
+    """(N, nv) True where a joint of `plant` is at an end of its range (`anomalies.at_limit`, with its margin)."""
+    return at_limit(q, plant.q_range, plant.hinge, plant.limit_margin)
+
+
 def _near_limit(plant: Plant, s: Signals) -> np.ndarray:
     """(N, nv) True where a joint is at an end of its range (`anomalies.at_limit`, with the joint's `margin`), and
     on the rows within half a period of its record's state-filter cut-off of those: the stop's force is in no
     model, and the filtered acceleration spreads its impulse around the contact (a testbed arm pressed into its
     stops named a time delay at its bound from the rows beside them)."""
-    near = at_limit(s.q, plant.q_range, plant.hinge, margin=plant.mj_model.jnt_margin[plant.mj_model.dof_jntid])
+    near = _at_stops(plant, s.q)
     if not near.any():
         return near
     cutoff = dict(s.state_hz)
