@@ -5,8 +5,8 @@
    `identify.diagnose.testbed` (its own MuJoCo stepping loop, PD control and multi-sine excitation, not
    `envs.simulate`) with one effect hidden in the plant or the sensor, diagnosed against the clean MJCF
    on a held-out record of another excitation: what is named first, its value against the truth, the
-   verdict and the validation torque RMS before and after. `arm_effect_table` does the same on three Menagerie
-   arms of ../shared/robots/ (the UR5e, the Panda and the Kinova Gen3, driven by torque) over seeds 0-3, and
+   verdict and the validation torque RMS before and after. `arm_effect_table` does the same on four Menagerie
+   arms of ../shared/robots/ (the UR5e, the Panda, the Kinova Gen3 and the xArm7, driven by torque) over seeds 0-3, and
    counts how often the stds cover the truth.
    `lab_model_table` does it with a generator that owes nothing to MuJoCo: the DFKI lab's own analytic model
    (their equations and identified parameters, or the nominal MJCF's numbers in their form) integrated by SciPy
@@ -525,10 +525,11 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
         md += [
             "## Hidden effects on Menagerie arms (independent generator)",
             "",
-            "The UR5e, the Panda and the Kinova Gen3 (continuous joints 1, 3, 5, 7) of ../shared/robots/, their "
-            "position servos replaced by motors of the same force limits (`identify.diagnose.testbed.torque_driven`), "
-            "excited and measured by the testbed's own loop (`ARMS`: PD tracking of a multi-sine about a pose clear "
-            "of the limits, RK4) with one effect hidden; "
+            "The UR5e, the Panda, the Kinova Gen3 (continuous joints 1, 3, 5, 7) and the xArm7 (frictionloss 1 N m "
+            "on every joint at MuJoCo's default solver parameters) of ../shared/robots/, their position servos "
+            "replaced by motors of the same force limits (`identify.diagnose.testbed.torque_driven`), excited and "
+            "measured by the testbed's own loop (`ARMS`: PD tracking of a multi-sine about a pose clear of the "
+            "limits, RK4) with one effect hidden; "
             "the table is seed 0, the closing line counts seeds 0-3.",
             "",
             hidden_markdown(result["arms_hidden"]),

@@ -17,8 +17,12 @@ Forward simulation integrates the constraint's damping explicitly, at the rate A
 B, and for a narrower ramp when B <= A Fc / (A Fc timestep - vt) (about 1 / timestep), the price being a lead
 of at least one step. `ideal_friction_speed` picks the ramp that comes closest to the ideal Coulomb term.
 
-A dof whose parameters are not of the direct form (MuJoCo's defaults among them) has vt = 0: the harness's
-torque model then treats its friction as the ideal Coulomb term Fc sign(dq) it approximates.
+`applied_friction_parameters` reads vt and the lead MuJoCo applies for any solver parameters (MuJoCo's defaults
+among them; a positive time constant is clamped to two physics steps as MuJoCo does unless `refsafe` is
+disabled). `friction_parameters` reads only a declared ramp (the direct form `friction_solver` writes): a dof with
+other parameters has vt = 0 there, and the identification's torque model treats its friction as the ideal Coulomb
+term Fc sign(dq) it stands for (and `system.hard_friction` simulates it as such). The diagnosis, which judges the
+MJCF as MuJoCo simulates it, reads every frictionloss as applied (`dynamics.plant.with_applied_friction`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ import mujoco
 import numpy as np
 
 __all__ = [
+    "applied_friction_parameters",
+    "declared_ramp",
     "friction_enabled",
     "friction_parameters",
     "friction_shape",
@@ -34,6 +40,7 @@ __all__ = [
     "ideal_friction",
     "ideal_friction_speed",
     "min_friction_speed",
+    "ramp_solver",
 ]
 
 _MIN_IMPEDANCE = 2e-4  # impedance d of a written ramp stays within these (MuJoCo clamps to [1e-4, 0.9999])
@@ -71,21 +78,47 @@ def friction_enabled(m: mujoco.MjModel) -> bool:
     return not m.opt.disableflags & off
 
 
-def friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-    """((nv,) ramp width vt [rad/s], (nv,) lead 1 / B [s]) of each dof's frictionloss; both 0 where its solver
-    parameters are not a direct-form ramp (`friction_solver`'s form: solref[0] = 0, solref[1] < 0,
-    solimp[0] = solimp[1])."""
+def applied_friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """((nv,) ramp width vt [rad/s], (nv,) lead 1 / B [s]) of the friction MuJoCo applies for each dof's
+    frictionloss, whatever its solver parameters (see the module docstring); both 0 where a dof has none.
+
+    B is 2 / (dmax timeconst) for a positive `solref` (timeconst at least two physics steps unless `refsafe` is
+    disabled) and -solref[1] / dmax for the direct form; vt = (1 - d) / d invweight0 Fc / B with d the impedance
+    at zero violation, solimp[0]; both impedances clamped to [1e-4, 0.9999] as MuJoCo clamps them.
+    """
     speed, lead = np.zeros(m.nv), np.zeros(m.nv)
+    refsafe = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_REFSAFE)
     for j in range(m.nv):
         fc = float(m.dof_frictionloss[j])
-        ref, imp = m.dof_solref[j], m.dof_solimp[j]
-        if fc <= 0 or ref[0] != 0 or ref[1] >= 0 or imp[0] != imp[1]:
+        if fc <= 0:
             continue
-        d = float(np.clip(imp[0], 1e-4, 0.9999))  # as MuJoCo clamps it
-        damping = -float(ref[1]) / d
+        ref, imp = m.dof_solref[j], m.dof_solimp[j]
+        d, dmax = (float(np.clip(v, 1e-4, 0.9999)) for v in imp[:2])
+        if ref[0] > 0:
+            timeconst = max(float(ref[0]), 2.0 * float(m.opt.timestep)) if refsafe else float(ref[0])
+            damping = 2.0 / (dmax * timeconst)
+        else:
+            damping = -float(ref[1]) / dmax
+        if damping <= 0:
+            continue  # no damping: MuJoCo's friction is then no ramp of the velocity
         speed[j] = (1.0 - d) / d * float(m.dof_invweight0[j]) * fc / damping
         lead[j] = 1.0 / damping
     return speed, lead
+
+
+def declared_ramp(m: mujoco.MjModel) -> np.ndarray:
+    """(nv,) True where a dof's frictionloss has the direct-form parameters `friction_solver` writes (solref[0] = 0,
+    solref[1] < 0, solimp[0] = solimp[1]): a ramp the model declares."""
+    ref, imp = m.dof_solref, m.dof_solimp
+    return (m.dof_frictionloss > 0) & (ref[:, 0] == 0) & (ref[:, 1] < 0) & (imp[:, 0] == imp[:, 1])  # type: ignore[no-any-return]
+
+
+def friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """((nv,) ramp width vt [rad/s], (nv,) lead 1 / B [s]) of each dof's frictionloss where it is a declared ramp
+    (`declared_ramp`), as MuJoCo applies it; both 0 elsewhere (read as the ideal Coulomb term)."""
+    speed, lead = applied_friction_parameters(m)
+    declared = declared_ramp(m)
+    return np.where(declared, speed, 0.0), np.where(declared, lead, 0.0)
 
 
 def min_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:
@@ -134,6 +167,21 @@ def friction_solver(
     damping = _damping(a, speed, timestep)
     d = a / (a + damping * speed)  # R = B vt / Fc
     return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0]), speed
+
+
+def ramp_solver(
+    frictionloss: float, speed: float, lead: float, invweight0: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(solreffriction (2,), solimpfriction (5,)) of the direct form that makes MuJoCo's frictionloss Fc exactly
+    the ramp Fc sat((dq + lead ddq) / vt) at this `invweight0` (no stability check: `friction_solver` picks the
+    lead for forward simulation); None where the impedance it needs is outside MuJoCo's bounds. Keeps a joint's
+    friction as it was where a change of its inertia would move `dof_invweight0`, and with it the ramp of
+    MuJoCo's defaults."""
+    a, damping = invweight0 * frictionloss, 1.0 / lead
+    d = a / (a + damping * speed)  # R = B vt / Fc
+    if not _MIN_IMPEDANCE / 2 <= d <= 0.9999:
+        return None
+    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0])
 
 
 def ideal_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:

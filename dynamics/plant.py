@@ -25,7 +25,7 @@ import pinocchio as pin
 
 from dynamics.actuators import Actuation, actuation_of
 from dynamics.errors import ModelError
-from dynamics.friction import friction_enabled, friction_parameters
+from dynamics.friction import applied_friction_parameters, friction_enabled, friction_parameters
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
 from dynamics.urdf import URDF_SUFFIXES, urdf_as_mjcf_file
@@ -43,6 +43,7 @@ __all__ = [
     "pinocchio_from_mujoco",
     "plant_from_model",
     "plant_from_xml",
+    "with_applied_friction",
 ]
 
 MJCF_DIR = Path(__file__).resolve().parent.parent / "mjcf"
@@ -107,7 +108,8 @@ class Plant:
         armature, damping, frictionloss, stiffness, springref: (nv,) joint properties of the model
             [kg m^2, N m s/rad, N m, N m/rad, rad].
         friction_speed, friction_lead: (nv,) ramp width [rad/s] and lead [s] of each joint's frictionloss
-            (`dynamics.friction.friction_parameters`: 0 where the friction is taken as ideal Coulomb).
+            (`dynamics.friction.friction_parameters`: 0 where the friction is taken as ideal Coulomb;
+            `with_applied_friction`: the ramp MuJoCo applies, whatever the solver parameters).
         source: the file the user gave where it is not `path` itself (a URDF, compiled to the MJCF `path`).
     """
 
@@ -188,6 +190,17 @@ def load_plant(system: str | Path) -> Plant:
             raise
         raise ModelError(str(err).replace(str(path), str(source))) from None
     return dataclasses.replace(plant, name=source.stem, source=source) if source != path else plant
+
+
+def with_applied_friction(plant: Plant) -> Plant:
+    """`plant` with every joint's frictionloss read as the ramp MuJoCo applies for its solver parameters
+    (`dynamics.friction.applied_friction_parameters`), MuJoCo's defaults included, not as the ideal Coulomb
+    term a frictionloss at other than a declared ramp stands for in the identification: the model as MuJoCo
+    simulates it (on the Menagerie xArm7's last joint, frictionloss 1 N m at the default parameters is a ramp
+    7.7 rad/s wide)."""
+    speed, lead = applied_friction_parameters(plant.mj_model)
+    on = np.asarray(plant.frictionloss) > 0  # zero where the model's <option><flag> disables dry friction
+    return dataclasses.replace(plant, friction_speed=np.where(on, speed, 0.0), friction_lead=np.where(on, lead, 0.0))
 
 
 def plant_from_xml(xml: str, name: str, directory: Path) -> Plant:

@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 from dynamics.friction import (
+    applied_friction_parameters,
     friction_parameters,
     friction_shape,
     friction_solver,
     ideal_friction_speed,
     min_friction_speed,
+    ramp_solver,
 )
-from dynamics.plant import load_plant
+from dynamics.plant import load_plant, with_applied_friction
 from dynamics.regressor import ParameterModel
 from dynamics.torque import inverse_dynamics, joint_torque
 from identify.diagnose.calibrate import Extension, calibrated_xml, mjcf_measured_torque
@@ -380,3 +382,78 @@ def test_the_bench_widens_every_joint_friction_to_the_ramp_it_asks_for() -> None
         d.qpos[:], d.qvel[:], d.qacc[:] = 0.0, [v, 0.0], 0.0
         mujoco.mj_inverse(wide, d)
         assert d.qfrc_constraint[0] == pytest.approx(-0.2 * np.clip(v / 0.1, -1, 1), abs=1e-6)
+
+
+def _solver_variant(kind: str) -> mujoco.MjModel:
+    """two_link with frictionloss on both joints and the solver parameters of `kind`."""
+    m = mujoco.MjModel.from_xml_path(str(load_plant("two_link").path))
+    m.dof_frictionloss[:] = [0.3, 0.2]
+    if kind == "positive":  # another time constant and impedances (dmin != dmax)
+        m.dof_solref[:] = [0.05, 0.7]
+        m.dof_solimp[:, :2] = [0.8, 0.9]
+    elif kind == "clamped":  # a time constant below two steps: MuJoCo takes two steps
+        m.dof_solref[:] = [0.1 * m.opt.timestep, 1.0]
+    elif kind == "unclamped":  # the same with refsafe disabled: MuJoCo takes it as given
+        m.dof_solref[:] = [0.1 * m.opt.timestep, 1.0]
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_REFSAFE)
+    elif kind == "direct":
+        m.dof_solref[:] = [0.0, -300.0]
+        m.dof_solimp[:, :2] = [0.5, 0.7]
+    return m
+
+
+@pytest.mark.parametrize("kind", ["default", "positive", "clamped", "unclamped", "direct"])
+def test_the_friction_mujoco_applies_is_read_whatever_the_solver_parameters(kind: str) -> None:
+    """`applied_friction_parameters`: mj_inverse's friction force is Fc sat((dq + lead ddq) / vt) with the width and
+    lead read from any solref / solimp, MuJoCo's defaults and its clamp of short time constants included;
+    `friction_parameters` still reads only a declared ramp (the direct form with dmin = dmax)."""
+    m = _solver_variant(kind)
+    speed, lead = applied_friction_parameters(m)
+    assert np.all(speed > 0) and np.all(lead > 0)
+    q, dq, ddq = _states(np.random.default_rng(1), 400, m.nv, speed)
+    got = _friction_force(m, q, dq, ddq)
+    np.testing.assert_allclose(got, m.dof_frictionloss * friction_shape(dq, ddq, speed, lead), atol=1e-9)
+    if kind == "clamped":
+        np.testing.assert_allclose(lead, 0.95 * m.opt.timestep)  # 1 / B = dmax timeconst / 2, timeconst 2 steps
+    assert not np.any(friction_parameters(m)[0])  # dmin != dmax or a positive solref: not a declared ramp
+
+
+def test_the_xarm7s_default_friction_is_a_wide_ramp_on_its_last_joint_and_the_plant_reads_it() -> None:
+    """The Menagerie xArm7 (frictionloss 1 N m, default solver parameters): MuJoCo applies a ramp 7.7 rad/s wide on
+    joint 7 (dof_invweight0 7302) with a 9.5 ms lead; `with_applied_friction` gives the plant that friction, and its
+    torque model is then MuJoCo's inverse dynamics at any state (away from the joint limits)."""
+    plant = load_plant(ROBOTS / "xarm7_nohand.xml")
+    assert not np.any(plant.friction_speed)  # the identification's reading: ideal Coulomb
+    applied = with_applied_friction(plant)
+    assert applied.friction_speed[6] == pytest.approx(7.707, abs=1e-3)
+    np.testing.assert_allclose(applied.friction_lead, 0.02 * 0.95 / 2)
+    rng = np.random.default_rng(2)
+    q = rng.uniform(-0.5, 0.5, (300, plant.nv)) + np.array([0, 0.3, 0, 1.5, 0, 1, 0])
+    dq, ddq = rng.normal(0, 0.3, (300, plant.nv)), rng.normal(0, 20, (300, plant.nv))
+    want = inverse_dynamics(plant.mj_model, q, dq, ddq)
+    np.testing.assert_allclose(joint_torque(applied, q, dq, ddq)[0], want, atol=1e-8)
+    assert np.abs(joint_torque(plant, q, dq, ddq)[0] - want)[:, 6].max() > 0.9  # sign(dq): up to 2 Fc off
+
+
+def test_a_ramp_is_kept_where_an_inertia_change_moves_invweight0(tmp_path: Path) -> None:
+    """MuJoCo's default ramp is as wide as dof_invweight0: `ramp_solver` gives a joint the width and lead it had
+    at another inertia, and a calibrated MJCF whose armature changed keeps the nominal ramp on that joint (read as
+    applied) while the joints whose inverse inertia did not move keep their own parameters."""
+    plant = with_applied_friction(load_plant(ROBOTS / "xarm7_nohand.xml"))
+    j = 5
+    ext = Extension.none(plant)
+    ext.armature[j] = 0.02
+    path = tmp_path / "calibrated.xml"
+    path.write_text(calibrated_xml(plant, ext))
+    model = mujoco.MjModel.from_xml_path(str(path))
+    assert model.dof_invweight0[j] < 0.5 * plant.mj_model.dof_invweight0[j]
+    speed, lead = applied_friction_parameters(model)
+    assert speed[j] == pytest.approx(plant.friction_speed[j], rel=1e-5)  # as the MJCF text rounds it
+    assert lead[j] == pytest.approx(plant.friction_lead[j], rel=1e-5)
+    moved = ~np.isclose(model.dof_invweight0, plant.mj_model.dof_invweight0, rtol=1e-9, atol=0.0)
+    np.testing.assert_array_equal(model.dof_solref[~moved], plant.mj_model.dof_solref[~moved])
+    unpinned = mujoco.MjModel.from_xml_path(str(ROBOTS / "xarm7_nohand.xml"))
+    unpinned.dof_armature[j] += 0.02
+    mujoco.mj_setConst(unpinned, mujoco.MjData(unpinned))
+    assert applied_friction_parameters(unpinned)[0][j] < 0.5 * plant.friction_speed[j]  # what it keeps from
+    assert ramp_solver(1.0, 1.0, 1e-3, 1e-9) is None  # an impedance beyond MuJoCo's bounds: no exact ramp

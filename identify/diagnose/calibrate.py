@@ -46,7 +46,7 @@ import numpy as np
 from scipy import optimize
 
 from dynamics.actuators import actuation_of
-from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed
+from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed, ramp_solver
 from dynamics.inertia import (
     body_and_jacobian,
     is_consistent,
@@ -473,11 +473,27 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
 
 def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) -> None:
     """Every joint whose friction the fit changed gets the solver parameters that make MuJoCo apply the fitted
-    shape (`dynamics.friction`); `ext.friction_speed` records the ramp width written."""
+    shape (`dynamics.friction`); `ext.friction_speed` records the ramp width written. A joint whose friction
+    the fit left as it was, read as the ramp MuJoCo applies (`dynamics.plant.with_applied_friction`), keeps that
+    ramp where a fitted inertia moves its `dof_invweight0` (with MuJoCo's default solver parameters the ramp's
+    width goes with it)."""
     changed = [j for j in range(plant.nv) if ext.frictionloss[j] != 0 or ext.friction_speed[j] > 0]
-    if not changed:
+    kept = [j for j in range(plant.nv) if j not in changed and plant.friction_speed[j] > 0]
+    if not changed and not kept:
         return
     m = spec.compile()  # the inverse inertias of the calibrated model (its inertials and joint refs)
+    for j in kept:  # MuJoCo's ramp goes with dof_invweight0: a fitted inertia must not move the friction with it
+        invweight = float(m.dof_invweight0[j])
+        if np.isclose(invweight, float(plant.mj_model.dof_invweight0[j]), rtol=1e-9, atol=0.0):
+            continue
+        fc = float(m.dof_frictionloss[j])
+        solver = ramp_solver(fc, float(plant.friction_speed[j]), float(plant.friction_lead[j]), invweight)
+        if solver is None:  # beyond MuJoCo's impedance bounds: the width kept, the lead forward simulation allows
+            solver = friction_solver(fc, float(plant.friction_speed[j]), invweight, float(m.opt.timestep))[:2]
+        joint = spec.joint(plant.joint_names[j])
+        joint.solref_friction, joint.solimp_friction = solver
+    if not changed:
+        return
     if not friction_enabled(m):
         ext.notes.append(
             "the model's <option><flag> disables frictionloss (or every constraint): the fitted friction is written "
@@ -490,11 +506,18 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
         if fc <= 0:
             ext.friction_speed[j] = 0.0
             continue
-        if ext.friction_speed[j] <= 0:  # the joint's own ramp where it declares one, the ideal shape otherwise
-            declared = float(plant.friction_speed[j])
-            ext.friction_speed[j] = declared if declared > 0 else ideal_friction_speed(fc, invweight, step)
-        solref, solimp, ext.friction_speed[j] = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
         joint = spec.joint(name)
+        own = ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0  # the joint's own ramp, its lead as well
+        exact = ramp_solver(fc, plant.friction_speed[j], plant.friction_lead[j], invweight) if own else None
+        if exact is not None:
+            ext.friction_speed[j] = float(plant.friction_speed[j])
+            joint.solref_friction, joint.solimp_friction = exact
+            continue
+        if own:
+            ext.friction_speed[j] = float(plant.friction_speed[j])
+        if ext.friction_speed[j] <= 0:  # the ideal shape
+            ext.friction_speed[j] = ideal_friction_speed(fc, invweight, step)
+        solref, solimp, ext.friction_speed[j] = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
         joint.solref_friction, joint.solimp_friction = solref, solimp
 
 

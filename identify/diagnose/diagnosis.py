@@ -21,8 +21,7 @@ from scipy import ndimage, optimize
 
 from dynamics.base import base_parameters
 from dynamics.errors import DataError
-from dynamics.friction import ideal_friction
-from dynamics.plant import Plant, plant_from_xml
+from dynamics.plant import Plant, plant_from_xml, with_applied_friction
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
@@ -590,6 +589,7 @@ def diagnose(
     """
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
+    plant = with_applied_friction(plant)  # the nominal MJCF as MuJoCo simulates it
     selection = selection or SelectionOptions()
     if anomalies is None:
         anomalies = find_anomalies([*train, *validation], plant.hinge, plant.q_range, plant.limit_margin)
@@ -705,7 +705,7 @@ def diagnose(
         def calibrate(ext: Extension, named: list[Finding]) -> tuple[str, Plant, np.ndarray]:
             comment = ", ".join(f"{f.effect} {f.target}".strip() for f in named) or "no effect found"
             text = calibrated_xml(plant, ext, metric=metric, comment=comment)
-            model = plant_from_xml(text, f"{plant.name}_calibrated", tmp)
+            model = with_applied_friction(plant_from_xml(text, f"{plant.name}_calibrated", tmp))
             return text, model, _predict_records(model, ext, va)
 
         xml, calibrated, preds_cal = calibrate(ext, findings)
@@ -717,7 +717,9 @@ def diagnose(
             demoted, findings = findings, []
             ext = extension_from_fit(plant, [], fit, base_idx, record_offsets=offsets_by_record if m else None)
             xml, calibrated, preds_cal = calibrate(ext, findings)
-        refit = plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", tmp)
+        refit = with_applied_friction(
+            plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", tmp)
+        )
         models: dict[str, dict[str, dict[str, float]]] = {}
         preds: dict[str, np.ndarray] = {}
 
@@ -1280,21 +1282,25 @@ _SIGN_FRICTION = frozenset({"coulomb_friction", "load_friction"})  # friction la
 _LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "stribeck_friction", "backlash"})  # told apart below it
 
 
-def _slow_rows(s: Signals, joints: np.ndarray) -> np.ndarray:
+def _slow_rows(s: Signals, joints: np.ndarray, ramp: np.ndarray | None = None) -> np.ndarray:
     """(N, nv) True where a joint of `joints` (nv,) bool moves at most `SLIDING_FRACTION` of its RMS speed in
-    that record (a joint at rest or turning round)."""
+    that record (a joint at rest or turning round). `ramp`: (nv,) the width [rad/s] of each joint's friction
+    ramp; a joint counts in a record only where its ramp is no wider than that slow band (a wider one makes
+    the friction a smooth function of the speed there, not a set)."""
     slow = np.zeros(s.dq.shape, bool)
+    width = np.zeros(s.dq.shape[1]) if ramp is None else np.asarray(ramp, dtype=float)
     for r in np.unique(s.record):
         rows = s.record == r
-        speed = np.sqrt(np.mean(s.dq[rows] ** 2, axis=0))
-        slow[rows] = np.abs(s.dq[rows]) <= SLIDING_FRACTION * speed
+        band = SLIDING_FRACTION * np.sqrt(np.mean(s.dq[rows] ** 2, axis=0))
+        slow[rows] = (np.abs(s.dq[rows]) <= band) & (width <= band)
     return slow & np.asarray(joints, bool)
 
 
 def _held_by_friction(plant: Plant, s: Signals, still: np.ndarray) -> np.ndarray:
-    """(N, nv) True where a joint whose nominal MJCF gives it an ideal frictionloss F (sign(dq) in the torque
-    model, `dynamics.friction`) moves slower than `SLIDING_FRACTION` of its RMS speed in that record, and on every
-    row of a record in which a joint with any frictionloss never moves (`still`: (records, nv), `_never_moving`).
+    """(N, nv) True where a joint whose nominal MJCF gives it a frictionloss F, as a ramp no wider than the slow
+    band (`_slow_rows`; `dynamics.friction`), moves slower than `SLIDING_FRACTION` of its RMS speed in that
+    record, and on every row of a record in which a joint with any frictionloss never moves (`still`:
+    (records, nv), `_never_moving`).
 
     There the joint sticks or turns round, and its friction is anywhere within +-F, not F sign(dq) at the
     filtered velocity: the nominal torque model is set-valued there, and the measured torque says nothing a
@@ -1305,7 +1311,7 @@ def _held_by_friction(plant: Plant, s: Signals, still: np.ndarray) -> np.ndarray
     the same clean SO-ARM100 log with the jaw held still throughout was called `explained` by a jaw Coulomb
     friction at its bound, a torque gain at its bound and a torque offset.
     """
-    held = _slow_rows(s, ideal_friction(plant.frictionloss, plant.friction_speed))
+    held = _slow_rows(s, np.asarray(plant.frictionloss) > 0, plant.friction_speed)
     return held | (still[s.record] & (np.asarray(plant.frictionloss) > 0))
 
 

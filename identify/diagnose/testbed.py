@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from dynamics.friction import applied_friction_parameters, friction_solver, ramp_solver
 from dynamics.plant import Plant, load_plant
 from envs.dataset import Dataset
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
@@ -119,6 +120,7 @@ class TestbedSystem:
         rk4: integrate with RK4 instead of the model's integrator. An implicit integrator applies the joint
             damping D implicitly, which acts as h D of extra inertia (0.002 kg m^2 on the Panda's joints, damping
             1 at a 2 ms step): a discretisation the diagnosis rightly reports as armature, and no hardware has.
+        timestep: the physics step [s] of the rollout (None: the model's); a whole fraction of the sample period.
     """
 
     amplitude: tuple[float, ...]
@@ -129,6 +131,7 @@ class TestbedSystem:
     max_hz: float = 1.2
     center: tuple[float, ...] = ()
     rk4: bool = False
+    timestep: float | None = None
 
 
 SYSTEMS: dict[str, TestbedSystem] = {
@@ -175,6 +178,21 @@ ARMS: dict[str, TestbedSystem] = {
         center=(0.0, 0.5, 0.0, 1.5, 0.0, 1.0, 0.0),
         rk4=True,
     ),
+    # frictionloss 1 N m on every joint at MuJoCo's default solver parameters: on the last joint (damping 2 on
+    # an inertia of 1.4e-4 kg m^2) a ramp 7.7 rad/s wide. Its implicitfast integrator adds apparent armature on
+    # joints 5 and 7 (0.0035 to 0.0049 kg m^2 even at a 0.2 ms step), and RK4 needs a step below about
+    # 2.8 / (7302 x 2.13 /s) = 0.18 ms there: RK4 at 2 ms / 15
+    "xarm7_nohand": TestbedSystem(
+        (0.4, 0.3, 0.4, 0.4, 0.5, 0.5, 0.5),
+        (200.0, 200.0, 100.0, 100.0, 20.0, 20.0, 10.0),
+        (10.0, 10.0, 5.0, 5.0, 0.5, 0.5, 0.2),
+        (0.1, 0.1, 0.1, 0.1, 0.03, 0.03, 0.03),
+        0.01,
+        max_hz=1.0,
+        center=(0.0, 0.3, 0.0, 1.5, 0.0, 1.0, 0.0),
+        rk4=True,
+        timestep=0.002 / 15,
+    ),
 }
 
 
@@ -185,6 +203,7 @@ def arm_cases(arm: str) -> list[list[Injected]]:
         "ur5e": ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"),
         "panda_nohand": ("joint2", "joint4", "joint6", "joint5", "joint7"),
         "gen3": ("joint_2", "joint_4", "joint_6", "joint_5", "joint_7"),
+        "xarm7_nohand": ("joint2", "joint4", "joint6", "joint5", "joint7"),
     }[arm]
     big = 1.0 if arm == "ur5e" else 0.5  # the UR5e's joints carry about twice the Panda's torques
     return [
@@ -293,7 +312,29 @@ def _hidden_model(plant: Plant, effects: list[Injected]) -> mujoco.MjModel:
             m.body_mass[body] += e.size
             m.body_inertia[body] *= ratio  # the payload spread like the body: its centre of mass stays
     mujoco.mj_setConst(m, mujoco.MjData(m))
+    _keep_friction_ramps(
+        plant, m, {plant.joint_names.index(e.joint) for e in effects if e.effect == "coulomb_friction"}
+    )
     return m
+
+
+def _keep_friction_ramps(plant: Plant, m: mujoco.MjModel, changed: set[int]) -> None:
+    """Give every joint of `m` with a frictionloss, but the `changed` ones, the friction ramp its nominal MJCF
+    has (`dynamics.friction.applied_friction_parameters`).
+
+    MuJoCo's ramp at its default solver parameters is as wide as the joint's `dof_invweight0`: an armature or a
+    payload would otherwise change the friction too (a 0.5 kg payload on the xArm7's last link narrows that
+    joint's 7.7 rad/s ramp to a near step, which the diagnosis rightly names as a friction change of 2.8 N m)."""
+    speed, lead = applied_friction_parameters(plant.mj_model)
+    for j in range(plant.nv):
+        dof = int(m.jnt_dofadr[j])
+        if j in changed or speed[dof] <= 0:
+            continue
+        fc, invweight = float(m.dof_frictionloss[dof]), float(m.dof_invweight0[dof])
+        solver = ramp_solver(fc, float(speed[dof]), float(lead[dof]), invweight)
+        if solver is None:  # beyond MuJoCo's impedance bounds: the width kept, with the lead it allows
+            solver = friction_solver(fc, float(speed[dof]), invweight, float(m.opt.timestep))[:2]
+        m.dof_solref[dof], m.dof_solimp[dof] = solver
 
 
 def _applied_forces(
@@ -347,6 +388,8 @@ def rollout(
     m = _hidden_model(plant, effects)
     if cfg.rk4:
         m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    if cfg.timestep is not None:
+        m.opt.timestep = cfg.timestep
     d = mujoco.MjData(m)
     nominal = plant.mj_model
     dn = mujoco.MjData(nominal)
