@@ -23,7 +23,7 @@ from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
 from envs.sensors import SensorModel
 
-__all__ = ["Reference", "simulate_open_loop", "simulate_tracking"]
+__all__ = ["Reference", "simulate_open_loop", "simulate_tracking", "unstable"]
 
 
 class Reference(Protocol):
@@ -446,6 +446,28 @@ def _contact_report(m: mujoco.MjModel, t: np.ndarray, touching: dict[tuple[int, 
     ]
 
 
+_INSTABILITY = {
+    mujoco.mjtWarning.mjWARN_BADQPOS: "position",
+    mujoco.mjtWarning.mjWARN_BADQVEL: "velocity",
+    mujoco.mjtWarning.mjWARN_BADQACC: "acceleration",
+}
+
+
+def unstable(d: mujoco.MjData, joint_names: tuple[str, ...] = ()) -> str:
+    """ "" where MuJoCo has not had to reset `d`; else what it found (a NaN, Inf or huge position, velocity or
+    acceleration, and at which dof): MuJoCo then resets the state and goes on, so the record is silently wrong."""
+    for kind, what in _INSTABILITY.items():
+        w = d.warning[int(kind)]
+        if w.number > 0:
+            dof = int(w.lastinfo)
+            name = f" ({joint_names[dof]})" if 0 <= dof < len(joint_names) else ""
+            return (
+                f": MuJoCo found a NaN, Inf or huge {what} at dof {dof}{name} and reset the state; lower the "
+                "physics timestep or the gains"
+            )
+    return ""
+
+
 def _run(
     plant: Plant,
     t: np.ndarray,
@@ -508,8 +530,8 @@ def _run(
         if terms.semi_implicit:  # the step's own acceleration, the velocity and torque of the continuous motion
             ddq[k], dq[k] = step / h, terms.mean_velocity(state[1], step)
             applied[k] = applied[k] + terms.correction(m, *state, step, at_range)
-        if not np.all(np.isfinite(d.qpos)):
-            raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s")
+        if not np.all(np.isfinite(d.qpos)) or unstable(d):
+            raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s{unstable(d, plant.joint_names)}")
     if sensor.delay_s > 0:
         lag = np.floor((t - sensor.delay_s - t[0]) / dt_sample + 1e-9).astype(int)
         reported = applied[np.clip(lag, 0, n - 1)]

@@ -12,6 +12,7 @@ writing removes what was written: a run directory holds all of its outputs or no
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import re
 import sys
@@ -126,6 +127,24 @@ def data_paths(cfg: DictConfig) -> list[Path]:
     return out
 
 
+def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
+    """The records with `data.tau_lead_s` set: the torque logged at row k acted over an interval centred `lead`
+    later (half a sample where a controller logs its command at the start of a zero-order hold).
+
+    Raises:
+        ConfigError: a lead of a sample or more of some file (the file's rows are then not the torque's).
+    """
+    if lead == 0:
+        return datasets
+    for d in datasets:
+        if lead >= d.dt:
+            raise ConfigError(
+                f"data.tau_lead_s={lead:g} s is not below one sample ({d.dt:g} s) of {d.source}: it is the "
+                "offset of a held torque's interval from its row, at most half a sample for a zero-order hold"
+            )
+    return [dataclasses.replace(d, tau_lead_s=lead) for d in datasets]
+
+
 def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or a re-start window
     shorter than `MIN_WINDOW_SAMPLES` of its samples (known once read)."""
@@ -204,6 +223,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         max_speed=cfg.data.get("max_speed"),
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
+    datasets = _with_torque_lead(datasets, float(cfg.data.get("tau_lead_s") or 0.0))
     _check_below_nyquist(cfg, datasets)
     repairs = {  # per file: what the reader repaired (the first 100 rows of each kind)
         d.source: [{**asdict(r), "rows": list(r.rows[:100])} for r in d.meta.get("repairs", ())] for d in datasets

@@ -305,6 +305,8 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
             "samples": data.n_samples,
             "duration_s": float(data.time[-1] - data.time[0]),
             "saturated_fraction": data.meta["saturated_fraction"],
+            # data.csv has no field for it: give it to sysid-diagnose as data.tau_lead_s
+            "tau_lead_s": data.tau_lead_s,
         },
         "timing_s": timing,
         "config": OmegaConf.to_container(cfg, resolve=True),

@@ -53,6 +53,10 @@ def test_console_script_writes_the_contracted_outputs(tmp_path: Path) -> None:
     assert "base parameter" in proc.stdout  # the terminal summary
     header = (out / "data.csv").read_text().splitlines()[0].split(",")
     assert header[:2] == ["time", "q_swing"] and "tau_swing" in header
+    # what data.csv cannot say: its motor torque is held over the sample after its row (sysid-diagnose's
+    # data.tau_lead_s), half a sample less half the semi-implicit step
+    period = 1.0 / results["config"]["system"]["sensor"]["sample_rate_hz"]
+    assert 0 < results["data"]["tau_lead_s"] < 0.5 * period
     rows = rrd_rows(out / "recording.rrd")
     n = len((out / "data.csv").read_text().splitlines()) - 1
     assert 0.8 * n < rows["/joints/swing/tau/measured"] <= n  # filter edges trimmed

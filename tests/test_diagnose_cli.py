@@ -20,6 +20,7 @@ from envs.effects import HiddenEffect
 from harness.validate import ConfigError
 from tests.conftest import compose_config, rrd_has_blueprint, rrd_rows
 
+SHARED_ROBOTS = Path(__file__).resolve().parents[2] / "shared" / "robots"
 OUTPUTS = ("diagnosis.json", "diagnosis.rrd", "pendulum_calibrated.xml", "pendulum_calibrated_all.xml")
 
 
@@ -195,6 +196,8 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("++data.band_hz=abc", r"data\.band_hz must be a number, got 'abc'"),
         ("++data.band_hz=0", r"data\.band_hz must be > 0"),
         ("++data.band_hz=[1,2]", r"data\.band_hz must be a number, got \[1, 2\]"),
+        ("data.tau_lead_s=-0.001", r"data\.tau_lead_s must be >= 0, got -0\.001"),
+        ("data.tau_lead_s=0.1", r"data\.tau_lead_s=0\.1 s is not below one sample \(0\.002 s\) of .*train\.csv"),
     ],
 )
 def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(
@@ -388,3 +391,39 @@ def test_a_value_at_its_bound_is_printed_without_a_std() -> None:
     assert "torque_gain       elbow      0.7 1 (at its lower bound, no std)" in text and "nan" not in text
     free = cli._summary({**payload, "findings": [{**finding, "std": 0.004}]})
     assert "0.7 +- 0.004 1" in free
+
+
+@pytest.mark.skipif(
+    not (SHARED_ROBOTS / "panda_nohand.xml").is_file(), reason="../shared/robots/ is not beside the project"
+)
+def test_a_torque_logged_at_the_start_of_its_hold_is_read_at_its_centre(tmp_path: Path) -> None:
+    """The Panda in the testbed's own loop (the torque held over each 2 ms sample, logged at its start), written to
+    CSV, which has no field for that 1 ms lead. Read as sampled at the row's instant, states and torque are 1 ms
+    apart, and clean data were called `explained` by a joint-2 viscous friction of -0.067 N m s/rad; with
+    `data.tau_lead_s=0.001` they are clean."""
+    from identify.diagnose.testbed import ARMS, rollout, torque_driven
+
+    mjcf = torque_driven(SHARED_ROBOTS / "panda_nohand.xml", tmp_path)
+    paths = []
+    for i, (seed, duration) in enumerate(((0, 10.0), (1, 5.0))):
+        _, data = rollout(
+            "panda_nohand",
+            [],
+            rng=np.random.default_rng(seed),
+            duration_s=duration,
+            mjcf=mjcf,
+            settings=ARMS["panda_nohand"],
+        )
+        assert data.tau_lead_s == pytest.approx(0.001)  # half a sample under RK4
+        paths.append(tmp_path / f"arm_{i}.csv")
+        write_csv(data, paths[-1])
+    listed = ",".join(str(p) for p in paths)
+
+    def verdict(*extra: str) -> str:
+        out = tmp_path / f"out{len(extra)}"
+        overrides = [f"system.mjcf={mjcf}", f"data.path=[{listed}]", f"output_dir={out}", "diagnose.final_fit=false"]
+        cfg = compose_config([*overrides, "diagnose.recording=false", *extra], config_name="diagnose")
+        return str(cli.run(cfg)["verdict"])
+
+    assert verdict() == "explained"
+    assert verdict("data.tau_lead_s=0.001") == "no_discrepancy"

@@ -577,3 +577,20 @@ def test_the_testbed_refuses_what_it_cannot_drive(tmp_path: Path) -> None:
         rollout("two_link", [], rng=np.random.default_rng(0), settings=ARMS["ur5e"])
     with pytest.raises(ValueError, match="unknown testbed system 'ur5'"):
         rollout("ur5", [], rng=np.random.default_rng(0))
+
+
+@pytest.mark.skipif(
+    not (SHARED_ROBOTS / "xarm7_nohand.xml").is_file(), reason="../shared/robots/ is not beside the project"
+)
+def test_the_testbed_refuses_a_rollout_that_mujoco_had_to_reset(tmp_path: Path) -> None:
+    """The xArm7's last joint (damping 2 on 1.4e-4 kg m^2) under RK4 at its own 2 ms step diverges; MuJoCo resets
+    the state and goes on, and the diagnosis was then handed a record of resets (it called the torque a dead sensor).
+    The rollout is refused instead, naming the joint; `ARMS` integrates it at 2 ms / 15."""
+    from dataclasses import replace
+
+    from dynamics.errors import ModelError
+
+    path = torque_driven(SHARED_ROBOTS / "xarm7_nohand.xml", tmp_path)
+    settings = replace(ARMS["xarm7_nohand"], timestep=None)
+    with pytest.raises(ModelError, match=r"testbed xarm7_nohand: the simulation diverged at t = .* \(joint\d\)"):
+        rollout("xarm7_nohand", [], rng=np.random.default_rng(0), duration_s=1.0, mjcf=path, settings=settings)

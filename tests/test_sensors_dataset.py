@@ -83,3 +83,25 @@ def test_dataset_names_the_bad_shape() -> None:
         Dataset(
             time=np.arange(3.0), q=np.zeros((3, 1)), tau=np.zeros((3, 2)), joint_names=("j",), actuated=np.ones(1, bool)
         )
+
+
+def test_a_simulation_that_mujoco_resets_is_refused_naming_the_joint(tmp_path: Path) -> None:
+    """MuJoCo resets a diverging state to qpos0 and goes on, so every value stays finite and the record would be
+    silently wrong: a joint spring that RK4 cannot hold at the step (1e4 N m/rad on 1e-4 kg m^2, 2 ms) is refused,
+    naming the time, the dof and its joint."""
+    from dynamics.errors import ModelError
+
+    xml = tmp_path / "stiff.xml"
+    xml.write_text(
+        '<mujoco><option integrator="RK4" timestep="0.002" gravity="0 0 0"/><worldbody><body name="b">'
+        '<joint name="spin" type="hinge" axis="0 0 1" stiffness="1e4"/>'
+        '<inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/></body></worldbody>'
+        '<actuator><motor name="m" joint="spin" ctrlrange="-1 1"/></actuator></mujoco>'
+    )
+    plant = load_plant(xml)
+
+    def torque(t: np.ndarray) -> np.ndarray:
+        return np.sin(10 * t)[:, None]
+
+    with pytest.raises(ModelError, match=r"stiff: simulation diverged at t = .* dof 0 \(spin\) and reset the state"):
+        simulate_open_loop(plant, torque, duration_s=1.0, sensor=SensorModel(500.0), rng=np.random.default_rng(0))

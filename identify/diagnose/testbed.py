@@ -36,9 +36,11 @@ import mujoco
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from dynamics.errors import ModelError
 from dynamics.friction import applied_friction_parameters, friction_solver, ramp_solver
 from dynamics.plant import Plant, load_plant
 from envs.dataset import Dataset
+from envs.simulate import unstable
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
 
 __all__ = [
@@ -417,6 +419,9 @@ def rollout(
         for _ in range(substeps):
             d.qfrc_applied[:] = _applied_forces(effects, plant.joint_names, float(d.time), d.qpos, d.qvel)
             mujoco.mj_step(m, d)
+        reason = unstable(d, plant.joint_names)
+        if reason:
+            raise ModelError(f"testbed {system}: the simulation diverged at t = {t:.3f} s{reason}")
     # the torque is held over a sample; the semi-implicit integrators' positions trail the continuous motion by
     # half a physics step, so the torque's instant is (dt - h) / 2 after the sample (dt / 2 under RK4), as
     # `envs.simulate` has it
