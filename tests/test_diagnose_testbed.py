@@ -594,3 +594,27 @@ def test_the_testbed_refuses_a_rollout_that_mujoco_had_to_reset(tmp_path: Path) 
     settings = replace(ARMS["xarm7_nohand"], timestep=None)
     with pytest.raises(ModelError, match=r"testbed xarm7_nohand: the simulation diverged at t = .* \(joint\d\)"):
         rollout("xarm7_nohand", [], rng=np.random.default_rng(0), duration_s=1.0, mjcf=path, settings=settings)
+
+
+@pytest.mark.parametrize(
+    ("effects", "expected"),
+    [([], None), ([Injected("viscous_friction", "elbow", 0.02)], ("viscous_friction", "elbow"))],
+    ids=["clean", "viscous_elbow"],
+)
+def test_a_nominal_friction_of_any_solver_parameters_is_read_as_mujoco_applies_it(
+    tmp_path: Path, effects: list[Injected], expected: tuple[str, str] | None
+) -> None:
+    """A two-link MJCF whose frictionloss 0.2 N m has its own solreffriction / solimpfriction (0.2 1 / 0.5 0.6):
+    MuJoCo applies ramps 0.39 and 1.25 rad/s wide. Read as the ideal Coulomb term, clean data were called
+    `unexplained_structure` with six findings (an elbow friction change of -0.147 +- 0.008 N m first, seed 0);
+    read as applied they are clean, and a hidden viscous elbow friction is named alone, within 3 std."""
+    src = (Path(__file__).resolve().parents[1] / "mjcf" / "two_link.xml").read_text()
+    mjcf = tmp_path / "two_link_solref.xml"
+    friction = 'frictionloss="0.2" solreffriction="0.2 1" solimpfriction="0.5 0.6 0.001"'
+    mjcf.write_text(src.replace('armature="0.00218588"', f'armature="0.00218588" {friction}'))
+    _, dg = diagnose_records("two_link", [effects], effects, 0, train_s=10.0, validation_s=5.0, mjcf=mjcf)
+    if expected is None:
+        assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])
+        return
+    assert [(f.effect, f.target) for f in dg.findings] == [expected]
+    assert abs(dg.findings[0].value - effects[0].size) < 3 * dg.findings[0].std
