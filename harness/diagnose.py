@@ -178,6 +178,12 @@ def _band_hz(cfg: DictConfig) -> float | None:
     return float(band) if band is not None else None
 
 
+def _hard_friction(cfg: DictConfig) -> bool:
+    """Whether the logs come from `sysid-run`'s Coulomb simulation of each frictionloss (`system.hard_friction`,
+    false in conf/diagnose.yaml whatever the system config says): else the MJCF is read as MuJoCo applies it."""
+    return bool(cfg.system.get("hard_friction", False))
+
+
 def record_offsets(cfg: DictConfig) -> bool:
     """Whether a torque offset per training file is fitted as a nuisance: `diagnose.record_offsets` when set,
     else the data config's `record_offsets` (a property of the sensor, such as drivers whose torque estimate is
@@ -200,7 +206,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     (`harness.rundir.claim`: writable, not in use, no finished diagnosis unless `overwrite=true`).
     """
     validate_diagnose_config(cfg)
-    plant = with_applied_friction(load_system(cfg))  # the nominal MJCF as MuJoCo simulates it
+    plant = load_system(cfg)
+    if not _hard_friction(cfg):
+        plant = with_applied_friction(plant)  # the nominal MJCF as MuJoCo simulates it
     cfg = with_model_defaults(cfg, plant)
     outputs = ("diagnosis.rrd", *_mjcf_names(plant), "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
@@ -269,6 +277,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         band_hz=_band_hz(cfg),
         record_offsets=record_offsets(cfg),
         check_torque_signs=bool(opts.get("check_torque_signs", True)),
+        hard_friction=_hard_friction(cfg),
     )
 
     def run_diagnosis(train: Sequence[Dataset], **kwargs: Any) -> Diagnosis:  # each fit from the same seed

@@ -342,6 +342,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         "data.record_offsets",
         "diagnose.check_torque_signs",
         "diagnose.final_fit",
+        "system.hard_friction",
     )
     for key in keys:
         if OmegaConf.select(cfg, key) is not None:

@@ -427,3 +427,40 @@ def test_a_torque_logged_at_the_start_of_its_hold_is_read_at_its_centre(tmp_path
 
     assert verdict() == "explained"
     assert verdict("data.tau_lead_s=0.001") == "no_discrepancy"
+
+
+def test_the_diagnosis_reads_a_friction_as_the_logs_simulator_applied_it(tmp_path: Path) -> None:
+    """`system.hard_friction` is false for sysid-diagnose whatever the system config says (the any-robot config sets
+    it true for sysid-run): the MJCF is read as MuJoCo applies it. A log that sysid-run simulated with its Coulomb
+    friction (the xArm7, frictionloss 1 N m at MuJoCo's default parameters, which MuJoCo applies as ramps 0.11 to
+    7.7 rad/s wide) is told apart from that file (Stribeck and smooth-Coulomb findings), and is clean to the
+    diagnosis once `system.hard_friction=true` says how it was simulated. A value that is no flag is refused."""
+    xarm = SHARED_ROBOTS / "xarm7_nohand.xml"
+    if not xarm.is_file():
+        pytest.skip("../shared/robots/ is not beside the project")
+    cfg = compose_config([f"system.mjcf={xarm}"], config_name="diagnose")
+    assert cfg.system.hard_friction is False
+    run_dir = tmp_path / "run"
+    command = [sys.executable, "-m", "harness.run", f"system.mjcf={xarm}", "system.periods=2", "excitation=random"]
+    proc = subprocess.run(
+        [*command, f"hydra.run.dir={run_dir}"],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert json.loads((run_dir / "results.json").read_text())["config"]["system"]["hard_friction"] is True
+
+    def diagnosis(*extra: str) -> dict:  # type: ignore[type-arg]
+        out = tmp_path / f"out{len(extra)}"
+        overrides = [f"system.mjcf={xarm}", f"data.path={run_dir / 'data.csv'}", f"output_dir={out}"]
+        return cli.run(compose_config([*overrides, "diagnose.final_fit=false", *extra], config_name="diagnose"))
+
+    as_file = diagnosis()
+    assert as_file["verdict"] != "no_discrepancy"
+    assert {f["effect"] for f in as_file["findings"]} & {"stribeck_friction", "smooth_coulomb_friction"}
+    assert diagnosis("system.hard_friction=true")["verdict"] == "no_discrepancy"
+    with pytest.raises(ConfigError, match=r"system\.hard_friction must be true or false, got 'sometimes'"):
+        diagnosis("system.hard_friction=sometimes")

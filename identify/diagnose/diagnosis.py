@@ -561,6 +561,7 @@ def diagnose(
     record_offsets: bool = False,
     anomalies: Sequence[Anomaly] | None = None,
     check_torque_signs: bool = True,
+    hard_friction: bool = False,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -583,13 +584,17 @@ def diagnose(
             None finds them on `train` and `validation`.
         check_torque_signs: refuse a record whose torque columns look flipped or swapped
             (`check_torque_columns`).
+        hard_friction: the records come from a simulation that applied each frictionloss as Coulomb friction
+            (`sysid-run`'s `system.hard_friction`): the plant's friction is read as `plant` reads it (ideal
+            Coulomb but for a declared ramp). False: as MuJoCo applies it (`with_applied_friction`).
 
     Returns:
         The diagnosis (see `Diagnosis`).
     """
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
-    plant = with_applied_friction(plant)  # the nominal MJCF as MuJoCo simulates it
+    as_simulated = (lambda p: p) if hard_friction else with_applied_friction  # the nominal MJCF as simulated
+    plant = as_simulated(plant)
     selection = selection or SelectionOptions()
     if anomalies is None:
         anomalies = find_anomalies([*train, *validation], plant.hinge, plant.q_range, plant.limit_margin)
@@ -705,7 +710,7 @@ def diagnose(
         def calibrate(ext: Extension, named: list[Finding]) -> tuple[str, Plant, np.ndarray]:
             comment = ", ".join(f"{f.effect} {f.target}".strip() for f in named) or "no effect found"
             text = calibrated_xml(plant, ext, metric=metric, comment=comment)
-            model = with_applied_friction(plant_from_xml(text, f"{plant.name}_calibrated", tmp))
+            model = as_simulated(plant_from_xml(text, f"{plant.name}_calibrated", tmp))
             return text, model, _predict_records(model, ext, va)
 
         xml, calibrated, preds_cal = calibrate(ext, findings)
@@ -717,9 +722,8 @@ def diagnose(
             demoted, findings = findings, []
             ext = extension_from_fit(plant, [], fit, base_idx, record_offsets=offsets_by_record if m else None)
             xml, calibrated, preds_cal = calibrate(ext, findings)
-        refit = with_applied_friction(
-            plant_from_xml(calibrated_xml(plant, refit_ext, metric=metric), f"{plant.name}_refit", tmp)
-        )
+        refit_xml = calibrated_xml(plant, refit_ext, metric=metric)
+        refit = as_simulated(plant_from_xml(refit_xml, f"{plant.name}_refit", tmp))
         models: dict[str, dict[str, dict[str, float]]] = {}
         preds: dict[str, np.ndarray] = {}
 
