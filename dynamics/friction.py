@@ -84,7 +84,9 @@ def applied_friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarr
 
     B is 2 / (dmax timeconst) for a positive `solref` (timeconst at least two physics steps unless `refsafe` is
     disabled) and -solref[1] / dmax for the direct form; vt = (1 - d) / d invweight0 Fc / B with d the impedance
-    at zero violation, solimp[0]; both impedances clamped to [1e-4, 0.9999] as MuJoCo clamps them.
+    at zero violation, solimp[0]; both impedances clamped to [1e-4, 0.9999] as MuJoCo clamps them. As MuJoCo
+    does: a solref of mixed signs is its default (0.02, 1), and a solimp of no width has d = (dmin + dmax) / 2
+    (`<flag override="enable">` overrides contacts only, not a dof's friction).
     """
     speed, lead = np.zeros(m.nv), np.zeros(m.nv)
     refsafe = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_REFSAFE)
@@ -93,7 +95,11 @@ def applied_friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarr
         if fc <= 0:
             continue
         ref, imp = m.dof_solref[j], m.dof_solimp[j]
-        d, dmax = (float(np.clip(v, 1e-4, 0.9999)) for v in imp[:2])
+        if (ref[0] > 0) != (ref[1] > 0):  # a mixed sign: MuJoCo warns and takes its default
+            ref = np.array([0.02, 1.0])
+        dmax = float(np.clip(imp[1], 1e-4, 0.9999))
+        # the impedance at zero violation: dmin, or the mean of both where the transition has no width
+        d = float(np.clip(imp[0] if imp[2] > 1e-15 else 0.5 * (imp[0] + imp[1]), 1e-4, 0.9999))
         if ref[0] > 0:
             timeconst = max(float(ref[0]), 2.0 * float(m.opt.timestep)) if refsafe else float(ref[0])
             damping = 2.0 / (dmax * timeconst)

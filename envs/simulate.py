@@ -519,10 +519,13 @@ def _run(
         at_range = _at_force_range(m, d) if terms.any_gain else None
         if clamp is not None:
             mujoco.mj_getState(m, d, start, kind)
+            warnings = [int(w.number) for w in d.warning]
         h, step = m.opt.timestep, _interval(m, d, fine, substeps, clamp)
         if step is None:  # a watched servo clamped: this interval again, from its start, at the finer step
             assert clamp is not None
             mujoco.mj_setState(m, d, start, kind)
+            for w, number in zip(d.warning, warnings, strict=True):  # what the coarse try met is undone with it
+                w.number = number
             h, count = clamp.model.opt.timestep, int(round(dt_sample / clamp.model.opt.timestep))
             step = _interval(clamp.model, d, next(_setpoints(targets, t[k : k + 1], h, count)), count, None)
             refined.append(k)

@@ -127,15 +127,21 @@ def data_paths(cfg: DictConfig) -> list[Path]:
     return out
 
 
-def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
+def _with_torque_lead(datasets: list[Dataset], lead: float, derivatives: str) -> list[Dataset]:
     """The records with `data.tau_lead_s` set: the torque logged at row k acted over an interval centred `lead`
     later (half a sample where a controller logs its command at the start of a zero-order hold).
 
     Raises:
-        ConfigError: a lead of a sample or more of some file (the file's rows are then not the torque's).
+        ConfigError: a lead of a sample or more of some file (the file's rows are then not the torque's), or a
+            lead with states the file gives (`diagnose.derivatives=given`: they cannot be moved to the hold's centre).
     """
     if lead == 0:
         return datasets
+    if derivatives == "given":
+        raise ConfigError(
+            f"data.tau_lead_s={lead:g} s needs states derived from the angles: with diagnose.derivatives=given the "
+            "file's dq and ddq stay at the rows' instants; choose another diagnose.derivatives or leave the lead at 0"
+        )
     for d in datasets:
         if lead >= d.dt:
             raise ConfigError(
@@ -231,7 +237,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         max_speed=cfg.data.get("max_speed"),
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
-    datasets = _with_torque_lead(datasets, float(cfg.data.get("tau_lead_s") or 0.0))
+    datasets = _with_torque_lead(datasets, float(cfg.data.get("tau_lead_s") or 0.0), str(cfg.diagnose.derivatives))
     _check_below_nyquist(cfg, datasets)
     repairs = {  # per file: what the reader repaired (the first 100 rows of each kind)
         d.source: [{**asdict(r), "rows": list(r.rows[:100])} for r in d.meta.get("repairs", ())] for d in datasets

@@ -198,6 +198,7 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("++data.band_hz=[1,2]", r"data\.band_hz must be a number, got \[1, 2\]"),
         ("data.tau_lead_s=-0.001", r"data\.tau_lead_s must be >= 0, got -0\.001"),
         ("data.tau_lead_s=0.1", r"data\.tau_lead_s=0\.1 s is not below one sample \(0\.002 s\) of .*train\.csv"),
+        ("data.tau_lead_s=0.001 diagnose.derivatives=given", r"data\.tau_lead_s=0\.001 s needs states derived"),
     ],
 )
 def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(
@@ -207,7 +208,7 @@ def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(
     `spectral` (which needs whole periods of a known excitation) gave a confident false result, a window shorter
     than a sample printed a NaN error, and folds=2.5 or effects=null raised a TypeError."""
     with pytest.raises(ConfigError, match=message):
-        cli.run(_config(csv_files, tmp_path, override))
+        cli.run(_config(csv_files, tmp_path, *override.split(" ")))
     assert not any(tmp_path.iterdir())
 
 

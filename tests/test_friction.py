@@ -399,14 +399,27 @@ def _solver_variant(kind: str) -> mujoco.MjModel:
     elif kind == "direct":
         m.dof_solref[:] = [0.0, -300.0]
         m.dof_solimp[:, :2] = [0.5, 0.7]
+    elif kind == "mixed":  # a solref of mixed signs: MuJoCo takes its default (0.02, 1)
+        m.dof_solref[:] = [0.05, -1.0]
+    elif kind == "no_width":  # a solimp transition of no width: MuJoCo takes the mean impedance
+        m.dof_solimp[:, :3] = [0.3, 0.95, 0.0]
+    elif kind == "override":  # <flag override="enable">: o_solref / o_solimp are for contacts, not a dof's friction
+        m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_OVERRIDE)
+        m.opt.o_solref[:] = [0.05, 1.0]
+        m.opt.o_solimp[:] = [0.7, 0.8, 0.001, 0.5, 2.0]
     return m
 
 
-@pytest.mark.parametrize("kind", ["default", "positive", "clamped", "unclamped", "direct"])
-def test_the_friction_mujoco_applies_is_read_whatever_the_solver_parameters(kind: str) -> None:
+@pytest.mark.parametrize(
+    "kind", ["default", "positive", "clamped", "unclamped", "direct", "mixed", "no_width", "override"]
+)
+def test_the_friction_mujoco_applies_is_read_whatever_the_solver_parameters(
+    kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """`applied_friction_parameters`: mj_inverse's friction force is Fc sat((dq + lead ddq) / vt) with the width and
     lead read from any solref / solimp, MuJoCo's defaults and its clamp of short time constants included;
     `friction_parameters` still reads only a declared ramp (the direct form with dmin = dmax)."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warning about a mixed solref to MUJOCO_LOG.TXT here
     m = _solver_variant(kind)
     speed, lead = applied_friction_parameters(m)
     assert np.all(speed > 0) and np.all(lead > 0)
