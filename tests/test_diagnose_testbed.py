@@ -582,7 +582,9 @@ def test_the_testbed_refuses_what_it_cannot_drive(tmp_path: Path) -> None:
 @pytest.mark.skipif(
     not (SHARED_ROBOTS / "xarm7_nohand.xml").is_file(), reason="../shared/robots/ is not beside the project"
 )
-def test_the_testbed_refuses_a_rollout_that_mujoco_had_to_reset(tmp_path: Path) -> None:
+def test_the_testbed_refuses_a_rollout_that_mujoco_had_to_reset(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The xArm7's last joint (damping 2 on 1.4e-4 kg m^2) under RK4 at its own 2 ms step diverges; MuJoCo resets
     the state and goes on, and the diagnosis was then handed a record of resets (it called the torque a dead sensor).
     The rollout is refused instead, naming the joint; `ARMS` integrates it at 2 ms / 15."""
@@ -590,6 +592,7 @@ def test_the_testbed_refuses_a_rollout_that_mujoco_had_to_reset(tmp_path: Path) 
 
     from dynamics.errors import ModelError
 
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warning to MUJOCO_LOG.TXT in the working directory
     path = torque_driven(SHARED_ROBOTS / "xarm7_nohand.xml", tmp_path)
     settings = replace(ARMS["xarm7_nohand"], timestep=None)
     with pytest.raises(ModelError, match=r"testbed xarm7_nohand: the simulation diverged at t = .* \(joint\d\)"):

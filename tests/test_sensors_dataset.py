@@ -85,12 +85,15 @@ def test_dataset_names_the_bad_shape() -> None:
         )
 
 
-def test_a_simulation_that_mujoco_resets_is_refused_naming_the_joint(tmp_path: Path) -> None:
+def test_a_simulation_that_mujoco_resets_is_refused_naming_the_joint(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """MuJoCo resets a diverging state to qpos0 and goes on, so every value stays finite and the record would be
     silently wrong: a joint spring that RK4 cannot hold at the step (1e4 N m/rad on 1e-4 kg m^2, 2 ms) is refused,
     naming the time, the dof and its joint."""
     from dynamics.errors import ModelError
 
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warning to MUJOCO_LOG.TXT in the working directory
     xml = tmp_path / "stiff.xml"
     xml.write_text(
         '<mujoco><option integrator="RK4" timestep="0.002" gravity="0 0 0"/><worldbody><body name="b">'
