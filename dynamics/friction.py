@@ -39,6 +39,7 @@ __all__ = [
     "friction_solver",
     "ideal_friction",
     "ideal_friction_speed",
+    "kept_ramp",
     "min_friction_speed",
     "ramp_solver",
 ]
@@ -170,9 +171,14 @@ def friction_solver(
         )
     a = invweight0 * frictionloss
     speed = max(speed, _narrowest(a, timestep))
-    damping = _damping(a, speed, timestep)
-    d = a / (a + damping * speed)  # R = B vt / Fc
-    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0]), speed
+    return (*_direct_form(a, speed, _damping(a, speed, timestep)), speed)
+
+
+def _direct_form(a: float, speed: float, damping: float) -> tuple[np.ndarray, np.ndarray]:
+    """(solref, solimp) of the direct form whose ramp is `speed` wide with reference damping B = `damping`
+    (a = invweight0 Fc): the impedance d with R = B vt / Fc, i.e. d = a / (a + B vt)."""
+    d = a / (a + damping * speed)
+    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0])
 
 
 def ramp_solver(
@@ -183,11 +189,18 @@ def ramp_solver(
     lead for forward simulation); None where the impedance it needs is outside MuJoCo's bounds. Keeps a joint's
     friction as it was where a change of its inertia would move `dof_invweight0`, and with it the ramp of
     MuJoCo's defaults."""
-    a, damping = invweight0 * frictionloss, 1.0 / lead
-    d = a / (a + damping * speed)  # R = B vt / Fc
-    if not _MIN_IMPEDANCE / 2 <= d <= 0.9999:
-        return None
-    return np.array([0.0, -damping * d]), np.array([d, d, 0.001, 0.5, 2.0])
+    solref, solimp = _direct_form(invweight0 * frictionloss, speed, 1.0 / lead)
+    return (solref, solimp) if _MIN_IMPEDANCE / 2 <= solimp[0] <= 0.9999 else None
+
+
+def kept_ramp(
+    frictionloss: float, speed: float, lead: float, invweight0: float, timestep: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(solreffriction, solimpfriction, the width written) that keep a joint's ramp of width `speed` and lead
+    `lead` at this `invweight0`: exactly (`ramp_solver`) where MuJoCo's impedance bounds allow it, else the same
+    width with the lead stable forward simulation allows (`friction_solver`)."""
+    exact = ramp_solver(frictionloss, speed, lead, invweight0)
+    return (*exact, speed) if exact is not None else friction_solver(frictionloss, speed, invweight0, timestep)
 
 
 def ideal_friction_speed(frictionloss: float, invweight0: float, timestep: float) -> float:

@@ -35,6 +35,7 @@ __all__ = [
     "MJCF_DIR",
     "SYSTEMS",
     "Plant",
+    "as_simulated",
     "body_parameters",
     "check_against_mujoco",
     "load_plant",
@@ -201,6 +202,13 @@ def with_applied_friction(plant: Plant) -> Plant:
     speed, lead = applied_friction_parameters(plant.mj_model)
     on = np.asarray(plant.frictionloss) > 0  # zero where the model's <option><flag> disables dry friction
     return dataclasses.replace(plant, friction_speed=np.where(on, speed, 0.0), friction_lead=np.where(on, lead, 0.0))
+
+
+def as_simulated(plant: Plant, hard_friction: bool = False) -> Plant:
+    """`plant` with its friction read as the logs' simulator applied it: as MuJoCo does (`with_applied_friction`),
+    or, with `hard_friction`, as the Coulomb friction `sysid-run` simulates (`system.hard_friction`): the plant as
+    loaded, which reads a frictionloss at other than a declared ramp as the ideal Coulomb term."""
+    return plant if hard_friction else with_applied_friction(plant)
 
 
 def plant_from_xml(xml: str, name: str, directory: Path) -> Plant:

@@ -533,8 +533,9 @@ def _run(
         if terms.semi_implicit:  # the step's own acceleration, the velocity and torque of the continuous motion
             ddq[k], dq[k] = step / h, terms.mean_velocity(state[1], step)
             applied[k] = applied[k] + terms.correction(m, *state, step, at_range)
-        if not np.all(np.isfinite(d.qpos)) or unstable(d):
-            raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s{unstable(d, plant.joint_names)}")
+        reason = unstable(d, plant.joint_names)
+        if reason or not np.all(np.isfinite(d.qpos)):
+            raise ModelError(f"{plant.name}: simulation diverged at t = {t[k]:.3f} s{reason}")
     if sensor.delay_s > 0:
         lag = np.floor((t - sensor.delay_s - t[0]) / dt_sample + 1e-9).astype(int)
         reported = applied[np.clip(lag, 0, n - 1)]

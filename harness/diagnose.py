@@ -29,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from dynamics.base import base_parameters
 from dynamics.errors import DataError
-from dynamics.plant import Plant, with_applied_friction
+from dynamics.plant import Plant, as_simulated
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, atomic_write
 from envs.measured import read_many
@@ -212,9 +212,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     (`harness.rundir.claim`: writable, not in use, no finished diagnosis unless `overwrite=true`).
     """
     validate_diagnose_config(cfg)
-    plant = load_system(cfg)
-    if not _hard_friction(cfg):
-        plant = with_applied_friction(plant)  # the nominal MJCF as MuJoCo simulates it
+    plant = as_simulated(load_system(cfg), _hard_friction(cfg))  # the nominal MJCF as the logs' simulator ran it
     cfg = with_model_defaults(cfg, plant)
     outputs = ("diagnosis.rrd", *_mjcf_names(plant), "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:

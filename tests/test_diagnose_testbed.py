@@ -306,19 +306,25 @@ def test_viscous_friction_beside_dry_friction_is_named_in_several_records() -> N
     assert vis.value > 0 and vis.at_bound is None
 
 
-def _with_frictionloss(tmp_path: Path, frictionloss: float) -> Path:
-    """The built-in two-link arm with a frictionloss on both joints (MuJoCo's default soft constraint)."""
+def _with_frictionloss(tmp_path: Path, frictionloss: float, solver: str = "") -> Path:
+    """The built-in two-link arm with a frictionloss on both joints (MuJoCo's default soft constraint, or the
+    `solver` attributes given, e.g. `solreffriction="0.2 1"`)."""
     src = (Path(__file__).resolve().parents[1] / "mjcf" / "two_link.xml").read_text()
     out = tmp_path / "two_link_frictionloss.xml"
-    out.write_text(src.replace('armature="0.00218588"', f'armature="0.00218588" frictionloss="{frictionloss}"'))
+    friction = f'frictionloss="{frictionloss}" {solver}'.strip()
+    out.write_text(src.replace('armature="0.00218588"', f'armature="0.00218588" {friction}'))
     return out
 
 
-@pytest.mark.parametrize(
+# clean data, and a viscous elbow friction hidden: what the nominal friction's tests run on
+_CLEAN_OR_VISCOUS_ELBOW = pytest.mark.parametrize(
     ("effects", "expected"),
     [([], None), ([Injected("viscous_friction", "elbow", 0.02)], ("viscous_friction", "elbow"))],
     ids=["clean", "viscous_elbow"],
 )
+
+
+@_CLEAN_OR_VISCOUS_ELBOW
 def test_a_joint_held_by_its_nominal_frictionloss_is_not_a_discrepancy(
     tmp_path: Path, effects: list[Injected], expected: tuple[str, str] | None
 ) -> None:
@@ -599,11 +605,7 @@ def test_the_testbed_refuses_a_rollout_that_mujoco_had_to_reset(
         rollout("xarm7_nohand", [], rng=np.random.default_rng(0), duration_s=1.0, mjcf=path, settings=settings)
 
 
-@pytest.mark.parametrize(
-    ("effects", "expected"),
-    [([], None), ([Injected("viscous_friction", "elbow", 0.02)], ("viscous_friction", "elbow"))],
-    ids=["clean", "viscous_elbow"],
-)
+@_CLEAN_OR_VISCOUS_ELBOW
 def test_a_nominal_friction_of_any_solver_parameters_is_read_as_mujoco_applies_it(
     tmp_path: Path, effects: list[Injected], expected: tuple[str, str] | None
 ) -> None:
@@ -611,10 +613,7 @@ def test_a_nominal_friction_of_any_solver_parameters_is_read_as_mujoco_applies_i
     MuJoCo applies ramps 0.39 and 1.25 rad/s wide. Read as the ideal Coulomb term, clean data were called
     `unexplained_structure` with six findings (an elbow friction change of -0.147 +- 0.008 N m first, seed 0);
     read as applied they are clean, and a hidden viscous elbow friction is named alone, within 3 std."""
-    src = (Path(__file__).resolve().parents[1] / "mjcf" / "two_link.xml").read_text()
-    mjcf = tmp_path / "two_link_solref.xml"
-    friction = 'frictionloss="0.2" solreffriction="0.2 1" solimpfriction="0.5 0.6 0.001"'
-    mjcf.write_text(src.replace('armature="0.00218588"', f'armature="0.00218588" {friction}'))
+    mjcf = _with_frictionloss(tmp_path, 0.2, 'solreffriction="0.2 1" solimpfriction="0.5 0.6 0.001"')
     _, dg = diagnose_records("two_link", [effects], effects, 0, train_s=10.0, validation_s=5.0, mjcf=mjcf)
     if expected is None:
         assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])

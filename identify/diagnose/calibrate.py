@@ -46,7 +46,7 @@ import numpy as np
 from scipy import optimize
 
 from dynamics.actuators import actuation_of
-from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed, ramp_solver
+from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed, kept_ramp
 from dynamics.inertia import (
     body_and_jacobian,
     is_consistent,
@@ -486,12 +486,10 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
         invweight = float(m.dof_invweight0[j])
         if np.isclose(invweight, float(plant.mj_model.dof_invweight0[j]), rtol=1e-9, atol=0.0):
             continue
-        fc = float(m.dof_frictionloss[j])
-        solver = ramp_solver(fc, float(plant.friction_speed[j]), float(plant.friction_lead[j]), invweight)
-        if solver is None:  # beyond MuJoCo's impedance bounds: the width kept, the lead forward simulation allows
-            solver = friction_solver(fc, float(plant.friction_speed[j]), invweight, float(m.opt.timestep))[:2]
         joint = spec.joint(plant.joint_names[j])
-        joint.solref_friction, joint.solimp_friction = solver
+        joint.solref_friction, joint.solimp_friction, _ = kept_ramp(
+            float(m.dof_frictionloss[j]), plant.friction_speed[j], plant.friction_lead[j], invweight, m.opt.timestep
+        )
     if not changed:
         return
     if not friction_enabled(m):
@@ -507,17 +505,14 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
             ext.friction_speed[j] = 0.0
             continue
         joint = spec.joint(name)
-        own = ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0  # the joint's own ramp, its lead as well
-        exact = ramp_solver(fc, plant.friction_speed[j], plant.friction_lead[j], invweight) if own else None
-        if exact is not None:
-            ext.friction_speed[j] = float(plant.friction_speed[j])
-            joint.solref_friction, joint.solimp_friction = exact
-            continue
-        if own:
-            ext.friction_speed[j] = float(plant.friction_speed[j])
-        if ext.friction_speed[j] <= 0:  # the ideal shape
-            ext.friction_speed[j] = ideal_friction_speed(fc, invweight, step)
-        solref, solimp, ext.friction_speed[j] = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
+        if ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0:  # the joint's own ramp, its lead as well
+            solref, solimp, ext.friction_speed[j] = kept_ramp(
+                fc, plant.friction_speed[j], plant.friction_lead[j], invweight, step
+            )
+        else:  # the fitted ramp, or the ideal shape
+            if ext.friction_speed[j] <= 0:
+                ext.friction_speed[j] = ideal_friction_speed(fc, invweight, step)
+            solref, solimp, ext.friction_speed[j] = friction_solver(fc, float(ext.friction_speed[j]), invweight, step)
         joint.solref_friction, joint.solimp_friction = solref, solimp
 
 

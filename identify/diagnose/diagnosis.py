@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ from scipy import ndimage, optimize
 
 from dynamics.base import base_parameters
 from dynamics.errors import DataError
-from dynamics.plant import Plant, plant_from_xml, with_applied_friction
+from dynamics.plant import Plant, as_simulated, plant_from_xml
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
@@ -586,15 +587,15 @@ def diagnose(
             (`check_torque_columns`).
         hard_friction: the records come from a simulation that applied each frictionloss as Coulomb friction
             (`sysid-run`'s `system.hard_friction`): the plant's friction is read as `plant` reads it (ideal
-            Coulomb but for a declared ramp). False: as MuJoCo applies it (`with_applied_friction`).
+            Coulomb but for a declared ramp). False: as MuJoCo applies it (`dynamics.plant.as_simulated`).
 
     Returns:
         The diagnosis (see `Diagnosis`).
     """
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
-    as_simulated = (lambda p: p) if hard_friction else with_applied_friction  # the nominal MJCF as simulated
-    plant = as_simulated(plant)
+    simulated = partial(as_simulated, hard_friction=hard_friction)  # each model as the logs' simulator applied it
+    plant = simulated(plant)
     selection = selection or SelectionOptions()
     if anomalies is None:
         anomalies = find_anomalies([*train, *validation], plant.hinge, plant.q_range, plant.limit_margin)
@@ -710,7 +711,7 @@ def diagnose(
         def calibrate(ext: Extension, named: list[Finding]) -> tuple[str, Plant, np.ndarray]:
             comment = ", ".join(f"{f.effect} {f.target}".strip() for f in named) or "no effect found"
             text = calibrated_xml(plant, ext, metric=metric, comment=comment)
-            model = as_simulated(plant_from_xml(text, f"{plant.name}_calibrated", tmp))
+            model = simulated(plant_from_xml(text, f"{plant.name}_calibrated", tmp))
             return text, model, _predict_records(model, ext, va)
 
         xml, calibrated, preds_cal = calibrate(ext, findings)
@@ -723,7 +724,7 @@ def diagnose(
             ext = extension_from_fit(plant, [], fit, base_idx, record_offsets=offsets_by_record if m else None)
             xml, calibrated, preds_cal = calibrate(ext, findings)
         refit_xml = calibrated_xml(plant, refit_ext, metric=metric)
-        refit = as_simulated(plant_from_xml(refit_xml, f"{plant.name}_refit", tmp))
+        refit = simulated(plant_from_xml(refit_xml, f"{plant.name}_refit", tmp))
         models: dict[str, dict[str, dict[str, float]]] = {}
         preds: dict[str, np.ndarray] = {}
 

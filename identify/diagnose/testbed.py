@@ -37,7 +37,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from dynamics.errors import ModelError
-from dynamics.friction import applied_friction_parameters, friction_solver, ramp_solver
+from dynamics.friction import applied_friction_parameters, kept_ramp
 from dynamics.plant import Plant, load_plant
 from envs.dataset import Dataset
 from envs.simulate import unstable
@@ -146,53 +146,57 @@ SYSTEMS: dict[str, TestbedSystem] = {
     "wheel_pendulum": TestbedSystem((0.0, 12.0), (0.0, 0.05), (0.0, 0.004), (0.0, 0.003), 0.0002, max_hz=1.0),
 }
 
+
+def _arm(
+    amplitude: tuple[float, ...],
+    kp: tuple[float, ...],
+    kd: tuple[float, ...],
+    sigma_tau: tuple[float, ...],
+    center: tuple[float, ...],
+    timestep: float | None = None,
+) -> TestbedSystem:
+    """A Menagerie arm as the testbed drives it: torques read to 0.01 N m, multi-sines up to 1 Hz, RK4."""
+    return TestbedSystem(amplitude, kp, kd, sigma_tau, 0.01, max_hz=1.0, center=center, rk4=True, timestep=timestep)
+
+
+_SEVEN_AMPLITUDE = (0.4, 0.3, 0.4, 0.4, 0.5, 0.5, 0.5)  # [rad] the seven-joint arms' multi-sines
+_SEVEN_NOISE = (0.1, 0.1, 0.1, 0.1, 0.03, 0.03, 0.03)  # [N m] their torque noise, base and wrist joints
+
 # Menagerie arms (../shared/robots/<name>.xml) as the testbed excites them, driven through `torque_driven`: a
 # multi-sine of a few tenths of a radian about a pose clear of the joint limits and of self-contact
 ARMS: dict[str, TestbedSystem] = {
-    "ur5e": TestbedSystem(
+    "ur5e": _arm(
         (0.5, 0.4, 0.5, 0.6, 0.6, 0.6),
         (2000.0, 2000.0, 1000.0, 200.0, 200.0, 100.0),
         (100.0, 100.0, 50.0, 10.0, 10.0, 5.0),
         (0.15, 0.15, 0.15, 0.05, 0.05, 0.05),
-        0.01,
-        max_hz=1.0,
-        center=(0.0, -1.3, 1.3, -1.5, -1.5, 0.0),
-        rk4=True,
+        (0.0, -1.3, 1.3, -1.5, -1.5, 0.0),
     ),
-    "panda_nohand": TestbedSystem(
-        (0.4, 0.3, 0.4, 0.4, 0.5, 0.5, 0.5),
+    "panda_nohand": _arm(
+        _SEVEN_AMPLITUDE,
         (600.0, 600.0, 600.0, 600.0, 100.0, 100.0, 50.0),
         (30.0, 30.0, 30.0, 30.0, 5.0, 5.0, 2.5),
-        (0.1, 0.1, 0.1, 0.1, 0.03, 0.03, 0.03),
-        0.01,
-        max_hz=1.0,
-        center=(0.0, -0.3, 0.0, -2.0, 0.0, 2.0, 0.8),
-        rk4=True,
+        _SEVEN_NOISE,
+        (0.0, -0.3, 0.0, -2.0, 0.0, 2.0, 0.8),
     ),
     # continuous joints 1, 3, 5 and 7 (no range); the light ones get gains explicit integration keeps stable
-    "gen3": TestbedSystem(
-        (0.4, 0.3, 0.4, 0.4, 0.5, 0.5, 0.5),
+    "gen3": _arm(
+        _SEVEN_AMPLITUDE,
         (20.0, 600.0, 10.0, 200.0, 5.0, 40.0, 3.0),
         (1.0, 30.0, 0.5, 10.0, 0.25, 2.0, 0.15),
-        (0.1, 0.1, 0.1, 0.1, 0.03, 0.03, 0.03),
-        0.01,
-        max_hz=1.0,
-        center=(0.0, 0.5, 0.0, 1.5, 0.0, 1.0, 0.0),
-        rk4=True,
+        _SEVEN_NOISE,
+        (0.0, 0.5, 0.0, 1.5, 0.0, 1.0, 0.0),
     ),
     # frictionloss 1 N m on every joint at MuJoCo's default solver parameters: on the last joint (damping 2 on
     # an inertia of 1.4e-4 kg m^2) a ramp 7.7 rad/s wide. Its implicitfast integrator adds apparent armature on
     # joints 5 and 7 (0.0035 to 0.0049 kg m^2 even at a 0.2 ms step), and RK4 needs a step below about
     # 2.8 / (7302 x 2.13 /s) = 0.18 ms there: RK4 at 2 ms / 15
-    "xarm7_nohand": TestbedSystem(
-        (0.4, 0.3, 0.4, 0.4, 0.5, 0.5, 0.5),
+    "xarm7_nohand": _arm(
+        _SEVEN_AMPLITUDE,
         (200.0, 200.0, 100.0, 100.0, 20.0, 20.0, 10.0),
         (10.0, 10.0, 5.0, 5.0, 0.5, 0.5, 0.2),
-        (0.1, 0.1, 0.1, 0.1, 0.03, 0.03, 0.03),
-        0.01,
-        max_hz=1.0,
-        center=(0.0, 0.3, 0.0, 1.5, 0.0, 1.0, 0.0),
-        rk4=True,
+        _SEVEN_NOISE,
+        (0.0, 0.3, 0.0, 1.5, 0.0, 1.0, 0.0),
         timestep=0.002 / 15,
     ),
 }
@@ -333,10 +337,7 @@ def _keep_friction_ramps(plant: Plant, m: mujoco.MjModel, changed: set[int]) -> 
         if j in changed or speed[dof] <= 0:
             continue
         fc, invweight = float(m.dof_frictionloss[dof]), float(m.dof_invweight0[dof])
-        solver = ramp_solver(fc, float(speed[dof]), float(lead[dof]), invweight)
-        if solver is None:  # beyond MuJoCo's impedance bounds: the width kept, with the lead it allows
-            solver = friction_solver(fc, float(speed[dof]), invweight, float(m.opt.timestep))[:2]
-        m.dof_solref[dof], m.dof_solimp[dof] = solver
+        m.dof_solref[dof], m.dof_solimp[dof], _ = kept_ramp(fc, speed[dof], lead[dof], invweight, m.opt.timestep)
 
 
 def _applied_forces(
