@@ -53,7 +53,7 @@ from identify.diagnose.anomalies import still_joints
 from identify.diagnose.state_noise import check_full_rate_state_noise
 from identify.excitation_check import check_excitation
 
-__all__ = ["CONF_DIR", "data_paths", "main", "record_offsets", "reference_models", "run"]
+__all__ = ["CONF_DIR", "data_paths", "main", "record_joint_offsets", "record_offsets", "reference_models", "run"]
 
 
 def _output_dir(cfg: DictConfig) -> Path:
@@ -194,9 +194,20 @@ def record_offsets(cfg: DictConfig) -> bool:
     """Whether a torque offset per training file is fitted as a nuisance: `diagnose.record_offsets` when set,
     else the data config's `record_offsets` (a property of the sensor, such as drivers whose torque estimate is
     zeroed anew at every power-up), else False."""
-    flag = cfg.diagnose.get("record_offsets")
+    return _logs_flag(cfg, "record_offsets")
+
+
+def record_joint_offsets(cfg: DictConfig) -> bool:
+    """Whether an angle offset per training file is fitted as a nuisance (encoders zeroed wherever the arm rested
+    when each file began): `diagnose.record_joint_offsets` when set, else the data config's, else False."""
+    return _logs_flag(cfg, "record_joint_offsets")
+
+
+def _logs_flag(cfg: DictConfig, key: str) -> bool:
+    """`diagnose.<key>` when set (not null), else the data config's `<key>` (a property of the logs), else False."""
+    flag = cfg.diagnose.get(key)
     if flag is None:
-        flag = cfg.data.get("record_offsets")
+        flag = cfg.data.get(key)
     return bool(flag) if flag is not None else False
 
 
@@ -280,6 +291,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         window_s=float(opts.window_s),
         band_hz=_band_hz(cfg),
         record_offsets=record_offsets(cfg),
+        record_joint_offsets=record_joint_offsets(cfg),
         check_torque_signs=bool(opts.get("check_torque_signs", True)),
         hard_friction=_hard_friction(cfg),
     )
@@ -467,6 +479,9 @@ def _final_fit_entry(final: Diagnosis, mjcf_name: str, datasets: Sequence[Datase
         "mjcf": mjcf_name,
         "records": [d.source for d in datasets],
         "findings": [{"name": f.name, "value": f.value, "std": f.std, "unit": f.unit} for f in final.findings],
+        # each record's own zeros where they were fitted as nuisances (diagnose.record_offsets / record_joint_offsets)
+        "record_offsets": final.info["record_offsets"],
+        "record_joint_offsets": final.info["record_joint_offsets"],
         "note": (
             "the same diagnosis fitted on every record, the validation ones included: the model for new data of "
             "this robot. Its figures would be in-sample, so none is reported; the gain on data the fit never saw "
@@ -507,6 +522,19 @@ def _findings_markdown(result: Diagnosis, units: dict[str, dict[str, str]]) -> s
             judged = m.get("torque_rms_judged", {}).get(j)
             judged_text = "-" if judged is None or not np.isfinite(judged) else f"{judged:.4g} {u['torque']}"
             lines.append(f"| {model} | {j} | {v:.4g} {u['torque']} | {judged_text} | {err} |")
+    angles = result.info.get("record_joint_offsets", [])
+    if angles:  # nuisances: each training record's encoder zero, not part of the calibrated model
+        lines += [
+            "",
+            "| training record | " + " | ".join(result.joint_names) + " |",
+            "|---|" + "---:|" * len(angles[0]["std"]),
+        ]
+        for r in angles:
+            cells = [
+                "-" if not np.isfinite(r[j]) else f"{r[j]:.4g} ± {r['std'][j]:.2g} {units[j]['angle']}"
+                for j in result.joint_names
+            ]
+            lines.append(f"| {Path(r['source']).name} (angle offset) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -340,6 +340,8 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         "data.resample",
         "diagnose.record_offsets",
         "data.record_offsets",
+        "diagnose.record_joint_offsets",
+        "data.record_joint_offsets",
         "diagnose.check_torque_signs",
         "diagnose.final_fit",
         "system.hard_friction",

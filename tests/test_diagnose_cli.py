@@ -132,30 +132,30 @@ def test_band_comes_from_the_data_config_unless_set() -> None:
     assert cli._band_hz(compose_config(["system=pendulum"], config_name="diagnose")) is None
 
 
-def test_record_offsets_come_from_the_data_config_unless_set() -> None:
-    # a sensor re-zeroed at every power-up is a property of the logs, like the band: `diagnose.record_offsets`
-    # (null by default) defers to the data config's `record_offsets`, false where neither says
+@pytest.mark.parametrize("key", ["record_offsets", "record_joint_offsets"])
+def test_record_offsets_come_from_the_data_config_unless_set(key: str) -> None:
+    # a sensor re-zeroed at every power-up (a torque's or an encoder's) is a property of the logs, like the band:
+    # `diagnose.<key>` (null by default) defers to the data config's `<key>`, false where neither says
+    flag = {"record_offsets": cli.record_offsets, "record_joint_offsets": cli.record_joint_offsets}
     plain = compose_config(["system=two_link", "data=dfki_double_pendulum"], config_name="diagnose")
-    assert cli.record_offsets(plain) is False
+    assert flag[key](plain) is False
     from_data = compose_config(
-        ["system=two_link", "data=dfki_double_pendulum", "+data.record_offsets=true"], config_name="diagnose"
+        ["system=two_link", "data=dfki_double_pendulum", f"++data.{key}=true"], config_name="diagnose"
     )
-    assert cli.record_offsets(from_data) is True
+    assert flag[key](from_data) is True
+    other = "record_joint_offsets" if key == "record_offsets" else "record_offsets"
+    assert flag[other](from_data) is False  # each its own flag
     both = compose_config(
-        [
-            "system=two_link",
-            "data=dfki_double_pendulum",
-            "+data.record_offsets=true",
-            "diagnose.record_offsets=false",
-        ],
+        ["system=two_link", "data=dfki_double_pendulum", f"++data.{key}=true", f"diagnose.{key}=false"],
         config_name="diagnose",
     )
-    assert cli.record_offsets(both) is False
+    assert flag[key](both) is False
 
 
-def test_record_offsets_must_be_a_flag(csv_files: list[Path], tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"diagnose\.record_offsets must be true or false"):
-        cli.run(_config(csv_files, tmp_path, "diagnose.record_offsets=3"))
+@pytest.mark.parametrize("key", ["record_offsets", "record_joint_offsets"])
+def test_record_offsets_must_be_a_flag(key: str, csv_files: list[Path], tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=rf"diagnose\.{key} must be true or false"):
+        cli.run(_config(csv_files, tmp_path, f"diagnose.{key}=3"))
     assert not any(tmp_path.iterdir())
 
 
@@ -465,3 +465,41 @@ def test_the_diagnosis_reads_a_friction_as_the_logs_simulator_applied_it(tmp_pat
     assert diagnosis("system.hard_friction=true")["verdict"] == "no_discrepancy"
     with pytest.raises(ConfigError, match=r"system\.hard_friction must be true or false, got 'sometimes'"):
         diagnosis("system.hard_friction=sometimes")
+
+
+def test_record_joint_offsets_reach_the_diagnosis(
+    csv_files: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the flag as resolved reaches both fits (the training one and the final fit on every record), and the final
+    # fit on the two files then finds an angle offset for each
+    seen: list[bool] = []
+
+    def spy(*args: object, **kwargs: object) -> object:
+        seen.append(bool(kwargs["record_joint_offsets"]))
+        return original(*args, **kwargs)
+
+    original = cli.diagnose
+    monkeypatch.setattr(cli, "diagnose", spy)
+    payload = cli.run(_config(csv_files, tmp_path, "diagnose.recording=false", "+data.record_joint_offsets=true"))
+    assert seen == [True, True]
+    assert [Path(r["source"]).name for r in payload["final_fit"]["record_joint_offsets"]] == [
+        "train.csv",
+        "validation.csv",
+    ]
+
+
+def test_the_report_lists_each_training_records_angle_zero() -> None:
+    # the recording's findings document carries each training record's angle offset with its std (a nuisance,
+    # not a finding), and nothing of the kind where none was fitted
+    from identify.diagnose.testbed import Injected, diagnose_records
+
+    zeros = (0.05, -0.04, 0.03)
+    per_record = [[Injected("joint_offset", "shoulder", z)] for z in zeros]
+    plant, dg = diagnose_records("two_link", per_record, [], record_joint_offsets=True)
+    text = cli._findings_markdown(dg, cli._units(plant))
+    rows = [line for line in text.splitlines() if "(angle offset)" in line]
+    assert [row.split(" | ")[0] for row in rows] == [f"| testbed_train_{i} (angle offset)" for i in range(3)]
+    for row, r in zip(rows, dg.info["record_joint_offsets"], strict=True):
+        assert f"{r['shoulder']:.4g} ± {r['std']['shoulder']:.2g} rad" in row
+    plain = diagnose_records("two_link", per_record[:1], [])[1]
+    assert "(angle offset)" not in cli._findings_markdown(plain, cli._units(plant))

@@ -213,8 +213,10 @@ def test_band_filtered_torques_of_every_validation_record_are_exposed() -> None:
     assert rms == pytest.approx(dg.models["calibrated"]["torque_rms"]["swing"], rel=1e-9)
 
 
-def _several_records(system: str, per_record: list[list[Injected]], validation: list[Injected]) -> Diagnosis:
-    return diagnose_records(system, per_record, validation)[1]  # type: ignore[no-any-return]
+def _several_records(
+    system: str, per_record: list[list[Injected]], validation: list[Injected], **kwargs: object
+) -> Diagnosis:
+    return diagnose_records(system, per_record, validation, **kwargs)[1]  # type: ignore[no-any-return]
 
 
 @pytest.mark.parametrize(
@@ -258,6 +260,78 @@ def test_a_large_joint_offset_is_not_mistaken_for_changing_torque_zeros() -> Non
         "two_link", [[Injected("joint_offset", "shoulder", 0.15)]] * 3, [Injected("joint_offset", "shoulder", 0.15)]
     )
     assert not dg.info["changing_offsets"], dg.info["changing_offsets"]
+    assert ("joint_offset", "shoulder") in _names(dg)
+
+
+ANGLE_ZEROS = {"shoulder": (0.2, -0.25, 0.1), "elbow": (-0.15, 0.1, 0.2)}  # per training record [rad]
+
+
+def _angle_zeros(**kwargs: object) -> Diagnosis:
+    per_record = [[Injected("joint_offset", j, v[i]) for j, v in ANGLE_ZEROS.items()] for i in range(3)]
+    return _several_records("two_link", per_record, [], **kwargs)
+
+
+def test_angle_zeros_that_change_between_records_are_named_as_changing_zeros() -> None:
+    """Encoders zeroed wherever the arm rested when each record began (as every DFKI log starts at 0.0002 rad):
+    the gravity torque differs between the records, which no shared parameter set predicts. Undeclared, that is
+    structure, and the note names both kinds of zero and the option that fits the angle's."""
+    dg = _angle_zeros()
+    assert dg.verdict == "unexplained_structure", dg.verdict_reason
+    assert dg.info["changing_offsets"] and not dg.info["record_joint_offsets"]
+    assert any("record_joint_offsets=true" in n and "angle zero" in n for n in dg.notes), dg.notes
+
+
+def test_declared_angle_zeros_are_fitted_per_record_and_left_out_of_the_model() -> None:
+    """`record_joint_offsets=True`: each record's angle offsets are nuisance parameters, found to within 0.002 rad
+    and 3 of their stds, and the clean plant is `no_discrepancy`; the calibrated MJCF moves no joint's zero (a
+    record to come rests somewhere else). Offsets this large (to 0.25 rad), linearised about the reported angles,
+    came out up to 0.02 rad wrong and named a rigid-body change: every column is evaluated at each record's
+    q - offset (`_record_angles_alone`), then made exact in the final fit."""
+    dg = _angle_zeros(record_joint_offsets=True)
+    assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])
+    assert not dg.findings and not dg.info["changing_offsets"]
+    found = dg.info["record_joint_offsets"]
+    assert [r["source"] for r in found] == [f"testbed_train_{i}" for i in range(3)]
+    for joint, truth in ANGLE_ZEROS.items():
+        value = np.array([r[joint] for r in found])
+        std = np.array([r["std"][joint] for r in found])
+        np.testing.assert_allclose(value, truth, atol=0.002)
+        assert np.all(np.abs(value - truth) <= 3 * std), (joint, value, std)
+
+
+def test_angle_and_torque_zeros_per_record_beside_a_named_effect() -> None:
+    """Both nuisances at once (a torque zero and angle zeros per record) and an elbow viscous friction of 0.06 in
+    every record: the coefficients of the two nuisance blocks and of the finding are each read from their own
+    place. The friction is named within 3 std, each record's torque zero within 0.01 N m and its angles within
+    3 std; the calibrated MJCF carries the torque zeros' mean, and no angle zero (no joint `ref`)."""
+    torque_zeros, friction = (0.08, -0.05, 0.06), Injected("viscous_friction", "elbow", 0.06)
+    per_record = [
+        [
+            *(Injected("joint_offset", j, v[i]) for j, v in ANGLE_ZEROS.items()),
+            friction,
+            Injected("torque_offset", "shoulder", torque_zeros[i]),
+        ]
+        for i in range(3)
+    ]
+    dg = _several_records("two_link", per_record, [friction], record_offsets=True, record_joint_offsets=True)
+    (found,) = dg.findings
+    assert (found.effect, found.target) == ("viscous_friction", "elbow")
+    assert abs(found.value - 0.06) <= 3 * found.std, (found.value, found.std)
+    np.testing.assert_allclose([r["shoulder"] for r in dg.info["record_offsets"]], torque_zeros, atol=0.01)
+    for joint, truth in ANGLE_ZEROS.items():
+        value = np.array([r[joint] for r in dg.info["record_joint_offsets"]])
+        std = np.array([r["std"][joint] for r in dg.info["record_joint_offsets"]])
+        assert np.all(np.abs(value - truth) <= 3 * std), (joint, value, std)
+    assert "ref=" not in dg.calibrated_xml
+    assert 'biasprm="' in dg.calibrated_xml  # the torque zeros' mean, on the shoulder's actuator
+
+
+def test_a_single_record_fits_no_angle_zero_of_its_own() -> None:
+    """One training record: its angle offset is the joint_offset effect, not a nuisance (nothing to hold it
+    apart from), so the option changes nothing."""
+    effects = [Injected("joint_offset", "shoulder", 0.15)]
+    dg = _several_records("two_link", [effects], effects, record_joint_offsets=True)
+    assert not dg.info["record_joint_offsets"]
     assert ("joint_offset", "shoulder") in _names(dg)
 
 

@@ -146,19 +146,26 @@ def extension_from_fit(
     base_independent: np.ndarray,
     *,
     record_offsets: np.ndarray | None = None,
+    nuisance: int | None = None,
 ) -> Extension:
     """Turn the chosen candidates' coefficients into model corrections.
 
     Args:
-        fit: coefficients of the nuisance columns (`record_offsets` of them), then of the steps' columns.
+        fit: coefficients of the nuisance columns, then of the steps' columns.
         record_offsets: (n_records, nv) per-record torque offsets fitted as nuisance; their mean becomes the
             model's torque offset.
+        nuisance: how many nuisance coefficients come first (None: those of `record_offsets`, one per record and
+            actuated joint). Other nuisances (an angle offset per record) leave the model as it is.
     """
     ext = Extension.none(plant)
     offset = 0
     if record_offsets is not None and record_offsets.size:
         ext.torque_offset[:] = np.nanmean(record_offsets, axis=0)  # NaN: a record whose torque was not fitted
         offset = int(np.count_nonzero(plant.actuated)) * len(record_offsets)
+    if nuisance is not None:
+        if nuisance < offset:
+            raise ValueError(f"nuisance={nuisance} is fewer than the {offset} record offsets' coefficients")
+        offset = nuisance
     names = list(plant.joint_names)
     for s in steps:
         c = s.candidate

@@ -563,6 +563,7 @@ def diagnose(
     anomalies: Sequence[Anomaly] | None = None,
     check_torque_signs: bool = True,
     hard_friction: bool = False,
+    record_joint_offsets: bool = False,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -581,6 +582,14 @@ def diagnose(
         record_offsets: fit a torque offset per training record and actuated joint as a nuisance (sensors
             re-zeroed at every power-up drift between recordings); the calibrated model uses their mean.
             Needs two or more training records; the torque_offset candidate is then never named.
+        record_joint_offsets: fit an angle offset per training record and joint as a nuisance (reported minus
+            true angle): encoders zeroed wherever the arm rested when each record began, as the DFKI logs' are
+            (every file starts at 0.0002 rad on both joints, where friction held the arm, not where it hangs).
+            Made exact in the final fit (the nominal torque re-evaluated at each record's q - offset); reported
+            with their stds in `info["record_joint_offsets"]`. The calibrated model carries none of them: the
+            zero of a record to come is where that arm will rest, unknown, and the model's own q = 0 is its best
+            guess (their mean was measured worse on the shared logs, see bench/diagnose.md). Needs two or more
+            training records; a joint_offset shared by every record is then never named (their columns span it).
         anomalies: the records' anomalies when found before (on the full-rate records of reduced ones);
             None finds them on `train` and `validation`.
         check_torque_signs: refuse a record whose torque columns look flipped or swapped
@@ -603,6 +612,12 @@ def diagnose(
     options = dict(derivative_options or {})
     band_hz = analysis_band(band_hz, [*train, *validation], derivatives, options)
     tr = _records(plant, train, derivatives, options, band_hz)
+    rest = np.zeros((len(tr), plant.nv))  # each training record's angle offset, found before the selection
+    if record_joint_offsets and len(tr) > 1:
+        # every column is then evaluated at each record's q - offset, not only the nominal torque in the final fit
+        rest = _record_angles_alone(plant, tr)
+        shifted = [dataclasses.replace(d, q=d.q - o) for d, o in zip(train, rest, strict=True)]
+        tr = _records(plant, shifted, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
     for rec in [*tr, *va]:
         # a joint in its stops on much of the record carries the stop's force there: not compared, as a still one
@@ -616,21 +631,18 @@ def diagnose(
         )
         check_state_noise(plant, rec.data, share, derivatives, options, moving=moving, band_hz=band_hz)
     names = plant.joint_names
-    unfitted = _still_joints(tr, plant.hinge)  # (records, nv): torques left out of the fit
-    s_tr = _without(stack_signals([r.signals for r in tr]), unfitted)
+    s_tr, unfitted, held_tr, stopped_tr = _training_signals(plant, tr)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
     s_va = stack_signals([r.signals for r in va])
-    held_tr = _held_by_friction(plant, s_tr, _never_moving(tr, plant.hinge))
     held_va = _held_by_friction(plant, s_va, _never_moving(va, plant.hinge))
     at_rest = {  # per joint: the share of the training rows its nominal frictionloss holds (set-valued torque)
         names[j]: float(np.mean(held_tr[:, j])) for j in range(plant.nv) if held_tr[:, j].any()
     }
-    # a joint at its range limit takes the stop's force, which no column holds: left out there as well
-    stopped_tr, stopped_va = _near_limit(plant, s_tr), _near_limit(plant, s_va)
+    stopped_va = _near_limit(plant, s_va)
     at_stops = {  # per joint: the share of the training rows left out at or beside its range limits
         names[j]: float(np.mean(stopped_tr[:, j])) for j in range(plant.nv) if stopped_tr[:, j].any()
     }
-    s_tr, s_va = _left_out(s_tr, held_tr | stopped_tr), _left_out(s_va, held_va | stopped_va)
+    s_va = _left_out(s_va, held_va | stopped_va)
     for what, sig, recs in (("training", s_tr, tr), ("validation", s_va, va)):
         if sig.used is not None and not np.any(sig.used[:, np.asarray(plant.actuated, bool)]):
             files = ", ".join(Path(r.data.source).name for r in recs)
@@ -654,11 +666,14 @@ def diagnose(
     nuisance = (
         _record_offset_columns(s_tr) if record_offsets and len(tr) > 1 else np.zeros((s_tr.n_samples, plant.nv, 0))
     )
+    m_t = nuisance.shape[2]  # the torque offsets', then the angle offsets' columns
+    if record_joint_offsets and len(tr) > 1:
+        nuisance = np.concatenate([nuisance, _record_joint_offset_columns(s_tr)], axis=2)
     m = nuisance.shape[2]
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
     z_floor = selection.min_z_records if len(tr) > 1 else selection.min_z  # the most lenient the selection asks
     sliding = _sliding_rows(s_tr, steps, names)
-    X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding)
+    X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None)
     fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
     sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
         names[j]: float(np.mean(~sliding[fitted_rows[:, j], j]))
@@ -668,15 +683,20 @@ def diagnose(
     sources = [r.data.source for r in tr]
     # every anomaly makes a record's mean meaningless, and so does a torque left out of the fit
     unusable = frozenset((a.source, a.joint) for a in anomalies) | {(d["source"], d["joint"]) for d in left_out}
-    drift = [] if m else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources, exclude=unusable)
-    offsets_by_record = fit.coef[:m].reshape(len(tr), -1) if m else np.zeros((0, plant.nv))
-    if m:
+    drift = (
+        [] if m_t else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources, exclude=unusable)
+    )
+    offsets_by_record = fit.coef[:m_t].reshape(len(tr), -1) if m_t else np.zeros((0, plant.nv))
+    if m_t:
         full = np.zeros((len(tr), plant.nv))
         full[:, plant.actuated] = offsets_by_record
         if s_tr.used is not None:  # no offset is estimated where none of a record's torque of a joint is fitted
             for i in range(len(tr)):  # (a joint that never moves there, at rest in its friction, in its stops)
                 full[i, ~np.any(s_tr.used[s_tr.record == i], axis=0)] = np.nan
         offsets_by_record = full
+    fitted_here = fitted_rows if sliding is None else fitted_rows & sliding
+    angles_by_record, angle_stds = _record_angles(X, fit, start=m_t, stop=m, fitted=fitted_here, n_records=len(tr))
+    angles_by_record = angles_by_record + rest[: len(angles_by_record)]
     base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
     sw = np.sqrt(weights)
     metric: np.ndarray = np.linalg.qr(  # type: ignore[assignment]
@@ -703,7 +723,7 @@ def diagnose(
     # one can still end there (pinned at its bound): it then adds nothing to the model and is not named
     pinned = _pinned_at_null(findings, [st.candidate.null for st in steps])
     findings = [f for f in findings if f not in pinned]
-    ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m else None)
+    ext = extension_from_fit(plant, steps, fit, base_idx, record_offsets=offsets_by_record if m_t else None, nuisance=m)
     refit_ext = _rigid_refit(plant, pool, s_tr, weights, base_idx, selection.min_independence)
 
     with scratch_folder("sysid_diagnose_") as tmp:
@@ -721,7 +741,9 @@ def diagnose(
             # chosen on the training records' folds, but the records held out of the whole fit say otherwise: a
             # finding must generalise, and the calibrated MJCF must not carry what makes it worse there
             demoted, findings = findings, []
-            ext = extension_from_fit(plant, [], fit, base_idx, record_offsets=offsets_by_record if m else None)
+            ext = extension_from_fit(
+                plant, [], fit, base_idx, record_offsets=offsets_by_record if m_t else None, nuisance=m
+            )
             xml, calibrated, preds_cal = calibrate(ext, findings)
         refit_xml = calibrated_xml(plant, refit_ext, metric=metric)
         refit = simulated(plant_from_xml(refit_xml, f"{plant.name}_refit", tmp))
@@ -809,6 +831,10 @@ def diagnose(
             "record_offsets": [
                 {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
             ],
+            "record_joint_offsets": [
+                {"source": r.data.source, **_per_joint(names, o), "std": _per_joint(names, sd)}
+                for r, o, sd in zip(tr, angles_by_record, angle_stds, strict=False)
+            ],
             "changing_offsets": drift,
             "prediction_std": _per_joint(names, spread),
             "left_out_of_fit": left_out,
@@ -837,9 +863,16 @@ def diagnose(
         + [
             f"{d['joint']}: the training records' mean torque residuals differ by {d['spread']:.3g} N m "
             f"({min(d['means']):+.3g} to {max(d['means']):+.3g}; p {_p_text(d['p_value'])} against their noise), "
-            "for example a torque zero that changes between recordings (re-zeroed at power-up) or a load that does; "
-            "a parameter set shared by the records does not predict it (diagnose.record_offsets=true fits one per "
-            "record as a nuisance)"
+            "for example a torque zero that changes between recordings (re-zeroed at power-up), an angle zero that "
+            "does (encoders zeroed where the arm rested: a gravity torque that differs), or a load that does; "
+            "a parameter set shared by the records does not predict it ("
+            + (
+                "diagnose.record_offsets=true fits a torque offset per record as a nuisance, beside the angle "
+                "offsets fitted already)"
+                if angles_by_record.size
+                else "diagnose.record_offsets=true fits a torque offset per record as a nuisance, "
+                "diagnose.record_joint_offsets=true an angle offset)"
+            )
             for d in drift
         ]
         + [
@@ -1227,6 +1260,66 @@ def _sim_error_ode(ref: ReferenceModel, records: list[_Record], window_s: float)
     return np.sqrt(sq / max(n, 1))
 
 
+def _record_angles(
+    X: np.ndarray, fit: LinearFit, *, start: int, stop: int, fitted: np.ndarray, n_records: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """((records, nv) the angle offset per record and joint [rad] and (records, nv) its std, from the nuisance
+    columns start:stop of the final fit (none: (0, nv) each); NaN where the column is 0 on every row the fit used
+    (`fitted`, (N, nv)): no torque of that record it fitted depends on that angle."""
+    nv = X.shape[1]
+    if stop <= start:
+        return np.zeros((0, nv)), np.zeros((0, nv))
+    values = fit.coef[start:stop].copy()
+    stds = np.sqrt(np.clip(np.diag(fit.cov)[start:stop], 0.0, None))
+    seen = np.any((X[:, :, start:stop] != 0) & fitted[:, :, None], axis=(0, 1))
+    values[~seen], stds[~seen] = np.nan, np.nan
+    return values.reshape(n_records, nv), stds.reshape(n_records, nv)
+
+
+def _training_signals(plant: Plant, records: list[_Record]) -> tuple[Signals, np.ndarray, np.ndarray, np.ndarray]:
+    """The training records' signals stacked, with the torques no column explains left out (`Signals.used`):
+    a joint that never moves in a record (`_still_joints`), rows its nominal frictionloss holds at rest
+    (`_held_by_friction`) and rows at or beside its range limits, where the stop's force acts (`_near_limit`).
+
+    Returns:
+        (the signals; (records, nv) the still joints; (N, nv) the rows held by friction; (N, nv) the rows at the
+        stops).
+    """
+    unfitted = _still_joints(records, plant.hinge)
+    s = _without(stack_signals([r.signals for r in records]), unfitted)
+    held = _held_by_friction(plant, s, _never_moving(records, plant.hinge))
+    stopped = _near_limit(plant, s)
+    return _left_out(s, held | stopped), unfitted, held, stopped
+
+
+def _record_angles_alone(plant: Plant, records: list[_Record]) -> np.ndarray:
+    """(records, nv) an angle offset per record and joint that the nominal model alone fits best (the final fit's
+    Gauss-Newton on `_record_joint_offset_columns`, on the torques the diagnosis fits, no effect beside them): the
+    point the selection's first-order columns are evaluated at. Offsets of 0.1 to 0.25 rad, linearised about the
+    reported angles, came out up to 0.02 rad wrong and left a rigid-body change of their own (the testbed's
+    two-link arm). The selection's records held out in turn then keep their own offset: it judges the effects
+    with each training record's zero known, as a sensor's nuisance, not as a validation record (whose zero is
+    unknown) would be."""
+    s, unfitted, _, _ = _training_signals(plant, records)
+    X = _record_joint_offset_columns(s)
+    weights = _weights(plant, _noise_floor(records, unfitted) * plant.actuated)
+    fit = _final_fit(plant, [], X, s, weights, X.shape[2], record_angles=0)[1]
+    return fit.coef.reshape(len(records), plant.nv)  # type: ignore[no-any-return]
+
+
+def _record_joint_offset_columns(s: Signals, dtau_dq: np.ndarray | None = None) -> np.ndarray:
+    """(N, nv, records x nv) an angle offset per record and joint (reported minus true angle), record-major: the
+    joint offset candidate's column -d tau / d q_j on that record's rows, in the band. `dtau_dq`: (N, nv, nv) the
+    torque's Jacobian where it was re-evaluated (at the offsets found so far), else the nominal one's."""
+    jac = s.dtau_dq if dtau_dq is None else dtau_dq
+    records, nv = np.unique(s.record), jac.shape[2]
+    out = np.zeros((s.n_samples, jac.shape[1], len(records) * nv))
+    for i, r in enumerate(records):
+        rows = s.record == r
+        out[rows, :, i * nv : (i + 1) * nv] = -jac[rows]
+    return s.in_band(out)
+
+
 def _record_offset_columns(s: Signals) -> np.ndarray:
     """(N, nv, records x actuated joints) a constant torque offset per record and actuated joint."""
     records, joints = np.unique(s.record), np.flatnonzero(s.actuated)
@@ -1379,11 +1472,15 @@ def _final_fit(
     weights: np.ndarray,
     n_nuisance: int = 0,
     sliding: np.ndarray | None = None,
+    *,
+    record_angles: int | None = None,
 ) -> tuple[np.ndarray, LinearFit, np.ndarray]:
     """Joint fit of the chosen columns, with joint offsets and torque gains made exact.
 
     `sliding`: (N, nv) the (row, joint) torques the fit uses (`_sliding_rows`; None: every used one); the
-    columns and the residual returned cover every row.
+    columns and the residual returned cover every row. `record_angles`: where the nuisance columns of an angle
+    offset per record and joint begin (`_record_joint_offset_columns`, records x nv of them, the nuisance's last
+    ones); None: there are none.
 
     Returns:
         (the columns, re-made where offsets and gains were iterated; the fit; (N, nv) the residual it leaves,
@@ -1425,27 +1522,33 @@ def _final_fit(
         if done:
             break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
-    offsets = [
-        (int(start[i]), plant.joint_names.index(st.candidate.target))
+    records = np.unique(s.record)
+    # (column, joint, record index or None for an offset of every record)
+    offsets: list[tuple[int, int, int | None]] = [
+        (int(start[i]), plant.joint_names.index(st.candidate.target), None)
         for i, st in enumerate(steps)
         if st.candidate.effect == "joint_offset"
     ]
+    if record_angles is not None:
+        offsets += [(record_angles + r * plant.nv + j, j, r) for r in range(len(records)) for j in range(plant.nv)]
     gains = [int(start[i]) for i, st in enumerate(steps) if st.candidate.effect == "torque_gain"]
     if not offsets and not gains:
         return X, fit, residual - np.einsum("knp,p->kn", X, fit.coef)
-    X, shift, nominal = X.copy(), np.zeros(plant.nv), s.tau_nominal
-    others = [c for c in range(X.shape[2]) if c not in gains and c not in {c for c, _ in offsets}]
+    X, nominal = X.copy(), s.tau_nominal
+    shift = np.zeros((len(records) + 1, plant.nv))  # the offsets found so far: every record's, then each record's
+    row_record = 1 + np.searchsorted(records, s.record)
+    others = [c for c in range(X.shape[2]) if c not in gains and c not in {o[0] for o in offsets}]
     for _ in range(20):
         previous = fit.coef.copy()
         if offsets:
-            for c, j in offsets:
-                shift[j] += fit.coef[c]
+            for c, j, r in offsets:
+                shift[0 if r is None else 1 + r, j] += fit.coef[c]
                 previous[c] = 0.0
-            q = s.q - shift
+            q = s.q - shift[0] - shift[row_record]
             nominal = joint_torque(plant, q, s.dq, s.ddq)[0]
             jac = torque_jacobian_q(plant, q, s.dq, s.ddq)
-            for c, j in offsets:
-                X[:, :, c] = s.in_band(-jac[:, :, j])
+            for c, j, r in offsets:
+                X[:, :, c] = s.in_band(-jac[:, :, j] * (1.0 if r is None else (row_record == 1 + r)[:, None]))
         if gains:
             effects = np.einsum("knp,p->kn", X[:, :, others], fit.coef[others])
             total = s.in_band(nominal) + effects
@@ -1453,16 +1556,17 @@ def _final_fit(
                 row = np.flatnonzero(np.any(X[:, :, c] != 0, axis=0))
                 X[:, row, c] = total[:, row]
         lo_it, hi_it = lo.copy(), hi.copy()
-        for c, j in offsets:  # the bounds hold for the total offset, the coefficient is its increment
-            lo_it[c], hi_it[c] = lo[c] - shift[j], hi[c] - shift[j]
+        for c, j, r in offsets:  # the bounds hold for the total offset, the coefficient is its increment
+            done = shift[0 if r is None else 1 + r, j]
+            lo_it[c], hi_it[c] = lo[c] - done, hi[c] - done
         measured = s.in_band(s.tau - nominal)
         fit = solve(X, measured, weights, lo_it, hi_it)
         if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
     left = measured - np.einsum("knp,p->kn", X, fit.coef)
     coef = fit.coef.copy()
-    for c, j in offsets:
-        coef[c] += shift[j]
+    for c, j, r in offsets:
+        coef[c] += shift[0 if r is None else 1 + r, j]
     return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time), left
 
 
