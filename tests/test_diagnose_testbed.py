@@ -326,6 +326,21 @@ def test_angle_and_torque_zeros_per_record_beside_a_named_effect() -> None:
     assert 'biasprm="' in dg.calibrated_xml  # the torque zeros' mean, on the shoulder's actuator
 
 
+def test_the_angle_zero_of_a_vertical_axis_is_reported_as_unknown() -> None:
+    """The spatial arm's yaw turns about gravity: no torque depends on its zero, which is NaN, not 0 +- 0; the
+    pitch's and elbow's zeros per record are found within 3 std."""
+    zeros = {"pitch": (0.03, -0.02, 0.01), "elbow": (-0.02, 0.03, 0.0)}
+    per_record = [[Injected("joint_offset", j, v[i]) for j, v in zeros.items()] for i in range(3)]
+    dg = _several_records("arm3", per_record, [], record_joint_offsets=True)
+    assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])
+    found = dg.info["record_joint_offsets"]
+    assert all(np.isnan(r["yaw"]) and np.isnan(r["std"]["yaw"]) for r in found), found
+    for joint, truth in zeros.items():
+        value = np.array([r[joint] for r in found])
+        std = np.array([r["std"][joint] for r in found])
+        assert np.all(np.abs(value - truth) <= 3 * std), (joint, value, std)
+
+
 def test_a_single_record_fits_no_angle_zero_of_its_own() -> None:
     """One training record: its angle offset is the joint_offset effect, not a nuisance (nothing to hold it
     apart from), so the option changes nothing."""

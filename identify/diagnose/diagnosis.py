@@ -1264,14 +1264,16 @@ def _record_angles(
     X: np.ndarray, fit: LinearFit, *, start: int, stop: int, fitted: np.ndarray, n_records: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """((records, nv) the angle offset per record and joint [rad] and (records, nv) its std, from the nuisance
-    columns start:stop of the final fit (none: (0, nv) each); NaN where the column is 0 on every row the fit used
-    (`fitted`, (N, nv)): no torque of that record it fitted depends on that angle."""
+    columns start:stop of the final fit (none: (0, nv) each); NaN where the column is 0 (to round-off) on every row
+    the fit used (`fitted`, (N, nv)): no torque of that record it fitted depends on that angle (a vertical first
+    axis)."""
     nv = X.shape[1]
     if stop <= start:
         return np.zeros((0, nv)), np.zeros((0, nv))
     values = fit.coef[start:stop].copy()
     stds = np.sqrt(np.clip(np.diag(fit.cov)[start:stop], 0.0, None))
-    seen = np.any((X[:, :, start:stop] != 0) & fitted[:, :, None], axis=(0, 1))
+    norms = np.sqrt(np.sum((X[:, :, start:stop] * fitted[:, :, None]) ** 2, axis=(0, 1)))
+    seen = norms > 1e-9 * max(float(norms.max()), 1e-300)  # round-off (a vertical first axis) is not a column
     values[~seen], stds[~seen] = np.nan, np.nan
     return values.reshape(n_records, nv), stds.reshape(n_records, nv)
 
