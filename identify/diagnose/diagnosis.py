@@ -44,7 +44,7 @@ from identify.diagnose.calibrate import (
     frictionloss_mapping,
     predict_measured_torque,
 )
-from identify.diagnose.candidates import Candidate, Signals, candidates, signals, stack_signals
+from identify.diagnose.candidates import MAX_JOINT_OFFSET, Candidate, Signals, candidates, signals, stack_signals
 from identify.diagnose.residuals import (
     analyse_residual,
     changing_offsets,
@@ -874,6 +874,13 @@ def diagnose(
                 "diagnose.record_joint_offsets=true an angle offset)"
             )
             for d in drift
+        ]
+        + [
+            f"{names[j]}: the angle zero of {Path(tr[i].data.source).name} is {angles_by_record[i, j]:+.3g} "
+            f"{plant.position_units[j]} from the model's, beyond the {MAX_JOINT_OFFSET:g} {plant.position_units[j]} "
+            "an encoder zeroed where the arm rested is expected to be: check the log's angle convention (its zero "
+            "pose, its sign, its unit)"
+            for i, j in zip(*np.nonzero(np.abs(np.nan_to_num(angles_by_record)) > MAX_JOINT_OFFSET), strict=True)
         ]
         + [
             f"{f.name}: |value - null| / std is {z:.2f} in the joint fit of every finding, below "
