@@ -344,6 +344,27 @@ def test_the_angle_zero_of_a_vertical_axis_is_reported_as_unknown() -> None:
         assert np.all(np.abs(value - truth) <= 3 * std), (joint, value, std)
 
 
+def test_records_that_start_at_one_pose_and_end_apart_are_told_from_parked_ones() -> None:
+    """`_one_start_pose`: the hint beside changing zeros (every DFKI log starts at 0.0002 rad and ends mid-motion)
+    needs two or more records with the same first angles, to 0.01 rad, whose last angles spread more than 0.05."""
+    from envs.dataset import Dataset
+    from identify.diagnose.diagnosis import _one_start_pose
+
+    def record(first: tuple[float, float], last: tuple[float, float]) -> Dataset:
+        q = np.linspace(first, last, 50)
+        return Dataset(np.arange(50) * 0.002, q, np.zeros_like(q), ("a", "b"), np.ones(2, bool))
+
+    hinge = np.ones(2, bool)
+    zeroed = [record((0.0002, 0.0), (0.37, -0.76)), record((0.0, 0.004), (1.06, -0.49))]
+    assert _one_start_pose(zeroed, hinge)
+    assert not _one_start_pose(zeroed[:1], hinge)  # one record says nothing
+    assert not _one_start_pose(zeroed, np.zeros(2, bool))  # no hinge
+    parked = [record((0.0, 0.0), (0.01, 0.0)), record((0.0, 0.0), (0.0, 0.02))]
+    assert not _one_start_pose(parked, hinge)
+    apart = [record((0.0, 0.0), (0.37, -0.76)), record((0.02, 0.0), (1.06, -0.49))]
+    assert not _one_start_pose(apart, hinge)
+
+
 def test_a_single_record_fits_no_angle_zero_of_its_own() -> None:
     """One training record: its angle offset is the joint_offset effect, not a nuisance (nothing to hold it
     apart from), so the option changes nothing."""

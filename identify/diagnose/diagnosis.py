@@ -683,6 +683,7 @@ def diagnose(
     sources = [r.data.source for r in tr]
     # every anomaly makes a record's mean meaningless, and so does a torque left out of the fit
     unusable = frozenset((a.source, a.joint) for a in anomalies) | {(d["source"], d["joint"]) for d in left_out}
+    one_start = _one_start_pose(train, plant.hinge)
     drift = (
         [] if m_t else changing_offsets(left_tr, s_tr.record, names, s_tr.actuated, floor, sources, exclude=unusable)
     )
@@ -872,6 +873,13 @@ def diagnose(
                 if angles_by_record.size
                 else "diagnose.record_offsets=true fits a torque offset per record as a nuisance, "
                 "diagnose.record_joint_offsets=true an angle offset)"
+            )
+            + (
+                f"; every training record starts at the same angles (to {START_POSE_TOL:g} rad) and ends elsewhere: "
+                "a pose each is driven to first, or encoders zeroed at each start (each record's angle zero is then "
+                "where the arm rested)"
+                if one_start and not angles_by_record.size
+                else ""
             )
             for d in drift
         ]
@@ -1283,6 +1291,23 @@ def _record_angles(
     seen = norms > 1e-9 * max(float(norms.max()), 1e-300)  # round-off (a vertical first axis) is not a column
     values[~seen], stds[~seen] = np.nan, np.nan
     return values.reshape(n_records, nv), stds.reshape(n_records, nv)
+
+
+START_POSE_TOL = 0.01  # records whose first angles agree this well [rad] start at one pose ...
+END_POSE_SPREAD = 0.05  # ... and, where their last angles spread more than this [rad], were not all parked there
+
+
+def _one_start_pose(records: Sequence[Dataset], hinge: np.ndarray) -> bool:
+    """Whether two or more records start at the same angles (every hinge within `START_POSE_TOL`) and end at
+    different ones (some hinge spreading more than `END_POSE_SPREAD`): what encoders zeroed at each start give
+    (every DFKI log starts at 0.0002 rad, within 0.004 once its start-up rows are dropped, and ends mid-motion),
+    not a pose each record is driven to and parked at."""
+    hinge = np.asarray(hinge, bool)
+    if len(records) < 2 or not np.any(hinge):
+        return False
+    first = np.array([d.q[0, hinge] for d in records])
+    last = np.array([d.q[-1, hinge] for d in records])
+    return bool(np.all(np.ptp(first, axis=0) <= START_POSE_TOL) and np.any(np.ptp(last, axis=0) > END_POSE_SPREAD))
 
 
 def _training_signals(plant: Plant, records: list[_Record]) -> tuple[Signals, np.ndarray, np.ndarray, np.ndarray]:
