@@ -349,6 +349,23 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     for key in keys:
         if OmegaConf.select(cfg, key) is not None:
             _flag(cfg, key)
+    nuisances = [k for k in (_set_by(cfg, "record_offsets"), _set_by(cfg, "record_joint_offsets")) if k]
+    if len(nuisances) == 2:
+        raise ConfigError(
+            f"{nuisances[0]} and {nuisances[1]} are both true: a torque zero and an angle zero per file are nearly "
+            "the same column on motions about one pose (on C.1's logs they traded -1.1 N m against -0.38 rad); "
+            "set the one the sensors call for"
+        )
+
+
+def _set_by(cfg: DictConfig, name: str) -> str | None:
+    """The key that makes the flag `name` true as `harness.diagnose` resolves it (`diagnose.<name>` when set, else
+    `data.<name>`), or None where it is false or unset."""
+    for where in ("diagnose", "data"):
+        value = OmegaConf.select(cfg, f"{where}.{name}")
+        if value is not None:
+            return f"{where}.{name}" if bool(value) else None
+    return None
 
 
 _OVERRIDE = re.compile(r"^[+~]{0,2}([A-Za-z_][\w/.]*)(@[\w.]+)?=(.*)$")

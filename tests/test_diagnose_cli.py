@@ -503,3 +503,24 @@ def test_the_report_lists_each_training_records_angle_zero() -> None:
         assert f"{r['shoulder']:.4g} ± {r['std']['shoulder']:.2g} rad" in row
     plain = diagnose_records("two_link", per_record[:1], [])[1]
     assert "(angle offset)" not in cli._findings_markdown(plain, cli._units(plant))
+
+
+@pytest.mark.parametrize(
+    ("overrides", "named"),
+    [
+        (
+            ["diagnose.record_offsets=true", "diagnose.record_joint_offsets=true"],
+            "diagnose.record_offsets and diagnose",
+        ),
+        (["++data.record_offsets=true", "diagnose.record_joint_offsets=true"], "data.record_offsets and diagnose"),
+    ],
+)
+def test_both_zeros_per_file_are_refused_by_their_keys(
+    overrides: list[str], named: str, csv_files: list[Path], tmp_path: Path
+) -> None:
+    with pytest.raises(ConfigError, match=named.replace(".", r"\.")):
+        cli.run(_config(csv_files, tmp_path, *overrides))
+    assert not any(tmp_path.iterdir())
+    # the data config's flag overridden to false by the diagnose key: no conflict
+    both_off = ["++data.record_offsets=true", "diagnose.record_offsets=false", "diagnose.record_joint_offsets=true"]
+    cli.run(_config(csv_files, tmp_path / "ok", "diagnose.recording=false", "diagnose.final_fit=false", *both_off))

@@ -590,6 +590,8 @@ def diagnose(
             zero of a record to come is where that arm will rest, unknown, and the model's own q = 0 is its best
             guess (their mean was measured worse on the shared logs, see bench/diagnose.md). Needs two or more
             training records; a joint_offset shared by every record is then never named (their columns span it).
+            Not with `record_offsets` (refused): on C.1's logs the two traded a torque zero of -1.1 N m against an
+            angle zero of -0.38 rad on two files, and the model carried the torque zeros' mean without the angles.
         anomalies: the records' anomalies when found before (on the full-rate records of reduced ones);
             None finds them on `train` and `validation`.
         check_torque_signs: refuse a record whose torque columns look flipped or swapped
@@ -603,6 +605,11 @@ def diagnose(
     """
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
+    if record_offsets and record_joint_offsets:
+        raise ValueError(
+            "record_offsets and record_joint_offsets together: a torque zero and an angle zero per record are nearly "
+            "the same column on motions about one pose; fit the one the sensors call for"
+        )
     simulated = partial(as_simulated, hard_friction=hard_friction)  # each model as the logs' simulator applied it
     plant = simulated(plant)
     selection = selection or SelectionOptions()
