@@ -621,8 +621,10 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
                 "it hangs. The same splits fitted with an angle offset per training file as a nuisance "
                 "(`diagnose.record_joint_offsets=true`; the calibrated MJCF carries none of them, the held-out "
                 "file's own is unknown to it). The offsets are each file's as the diagnosis fitted on every file "
-                "finds them. The option is off by default, on these logs too: the held-out files "
-                "carry their own offsets, which no model predicts, and the splits say which reading is better.",
+                "finds them; on motions about the bottom a shoulder torque zero per file looks the same "
+                "(opposite shoulder / elbow pairs), and the swing-up tells them apart. The option is off by default, "
+                "on these logs too: the held-out files carry their own offsets, which no model predicts, and the "
+                "splits say which reading is better.",
                 "",
                 angle_zeros_markdown(result["lofo_angle_zeros"]),
                 "",

@@ -873,18 +873,18 @@ def diagnose(
             f"({min(d['means']):+.3g} to {max(d['means']):+.3g}; p {_p_text(d['p_value'])} against their noise), "
             "for example a torque zero that changes between recordings (re-zeroed at power-up), an angle zero that "
             "does (encoders zeroed where the arm rested: a gravity torque that differs), or a load that does; "
-            "a parameter set shared by the records does not predict it ("
+            "a parameter set shared by the records does not predict it "
             + (
-                "diagnose.record_offsets=true fits a torque offset per record as a nuisance, beside the angle "
-                "offsets fitted already)"
+                "and the angle zeros fitted per record leave it (diagnose.record_offsets=true with "
+                "diagnose.record_joint_offsets=false fits a torque offset per record instead)"
                 if angles_by_record.size
-                else "diagnose.record_offsets=true fits a torque offset per record as a nuisance, "
+                else "(diagnose.record_offsets=true fits a torque offset per record as a nuisance, "
                 "diagnose.record_joint_offsets=true an angle offset)"
             )
             + (
                 f"; every training record starts at the same angles (to {START_POSE_TOL:g} rad) and ends elsewhere: "
-                "a pose each is driven to first, or encoders zeroed at each start (each record's angle zero is then "
-                "where the arm rested)"
+                "either a pose each is driven to first, or encoders zeroed at each start, which give each record its "
+                "own angle zero (where the arm rested)"
                 if one_start and not angles_by_record.size
                 else ""
             )
