@@ -271,7 +271,9 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
         "authors": list(authors),
         "joints": list(plant.joint_names),
         "splits": splits,
-        "record_joint_offsets": in_sample.info["record_joint_offsets"],  # each file's angle zero where fitted
+        "record_joint_offsets": [  # each file's angle zero where fitted, named by the file
+            {**r, "source": Path(r["source"]).name} for r in in_sample.info["record_joint_offsets"]
+        ],
     }
 
 
@@ -462,9 +464,10 @@ PARTS = ("hidden", "arms", "lab", "lofo")  # what `python -m bench diagnose` run
 ANGLE_ZEROS = ("diagnose.record_joint_offsets=true",)  # the splits run again with an angle offset per file
 
 
-def angle_zeros_markdown(tables: dict[str, dict[str, Any]]) -> str:
+def angle_zeros_markdown(tables: dict[str, dict[str, Any]], defaults: dict[str, dict[str, Any]]) -> str:
     """The splits fitted with an angle offset per training file (`ANGLE_ZEROS`): each file's offset as the fit on
-    every file finds it, and every split's held-out RMS against the lab's best and the default fit's."""
+    every file finds it, and every split's held-out RMS against the lab's best and the default fit's (`defaults`,
+    the same splits' tables without the option)."""
     lines = [
         "| session | file | its angle offset, fit on every file [rad] | held out: calibrated | default | best lab "
         "model | <= lab |",
@@ -472,13 +475,15 @@ def angle_zeros_markdown(tables: dict[str, dict[str, Any]]) -> str:
     ]
     for session, t in tables.items():
         offsets = {Path(r["source"]).name: r for r in t["record_joint_offsets"]}
-        for s in t["splits"]:
+        for s, d in zip(t["splits"], defaults[session]["splits"], strict=True):
             r = offsets[s["held_out"]]
             angle = " / ".join(f"{r[j]:+.3f} ± {r['std'][j]:.3f}" for j in t["joints"])
-            cells = [" / ".join(f"{v:.4f}" for v in x) for x in (s["torque_rms"]["calibrated"], s["best_authors"])]
-            default = " / ".join(f"{v:.4f}" for v in s["default"]) if "default" in s else "-"
+            cells = [
+                " / ".join(f"{v:.4f}" for v in x)
+                for x in (s["torque_rms"]["calibrated"], d["torque_rms"]["calibrated"], s["best_authors"])
+            ]
             lines.append(
-                f"| {session} | {s['held_out']} | {angle} | {cells[0]} | {default} | {cells[1]} | "
+                f"| {session} | {s['held_out']} | {angle} | {cells[0]} | {cells[1]} | {cells[2]} | "
                 f"{_yes_no(s['wins'])} |"
             )
     return "\n".join([*lines, "", *(f"- {line}" for line in lofo_summary(tables).split("\n"))])
@@ -610,9 +615,6 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
                 "",
             ]
         if "lofo_angle_zeros" in result:
-            for session, t in result["lofo_angle_zeros"].items():
-                for s, d in zip(t["splits"], result["lofo"][session]["splits"], strict=True):
-                    s["default"] = d["torque_rms"]["calibrated"]
             md += [
                 "### An angle zero per file",
                 "",
@@ -626,7 +628,7 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
                 "on these logs too: the held-out files carry their own offsets, which no model predicts, and the "
                 "splits say which reading is better.",
                 "",
-                angle_zeros_markdown(result["lofo_angle_zeros"]),
+                angle_zeros_markdown(result["lofo_angle_zeros"], result["lofo"]),
                 "",
             ]
         ramps = ramp_markdown(result["lofo"])

@@ -37,7 +37,7 @@ from envs.split import split_train_validation
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
 from harness.setup import CONF_DIR, load_system, with_auto_system, with_model_defaults
-from harness.validate import ConfigError, check_command_line, validate_diagnose_config
+from harness.validate import ConfigError, check_command_line, flag_set_by, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
     Diagnosis,
@@ -194,21 +194,13 @@ def record_offsets(cfg: DictConfig) -> bool:
     """Whether a torque offset per training file is fitted as a nuisance: `diagnose.record_offsets` when set,
     else the data config's `record_offsets` (a property of the sensor, such as drivers whose torque estimate is
     zeroed anew at every power-up), else False."""
-    return _logs_flag(cfg, "record_offsets")
+    return flag_set_by(cfg, "record_offsets") is not None
 
 
 def record_joint_offsets(cfg: DictConfig) -> bool:
     """Whether an angle offset per training file is fitted as a nuisance (encoders zeroed wherever the arm rested
     when each file began): `diagnose.record_joint_offsets` when set, else the data config's, else False."""
-    return _logs_flag(cfg, "record_joint_offsets")
-
-
-def _logs_flag(cfg: DictConfig, key: str) -> bool:
-    """`diagnose.<key>` when set (not null), else the data config's `<key>` (a property of the logs), else False."""
-    flag = cfg.diagnose.get(key)
-    if flag is None:
-        flag = cfg.data.get(key)
-    return bool(flag) if flag is not None else False
+    return flag_set_by(cfg, "record_joint_offsets") is not None
 
 
 def _mjcf_names(plant: Plant) -> tuple[str, str]:
@@ -527,7 +519,7 @@ def _findings_markdown(result: Diagnosis, units: dict[str, dict[str, str]]) -> s
         lines += [
             "",
             "| training record | " + " | ".join(result.joint_names) + " |",
-            "|---|" + "---:|" * len(angles[0]["std"]),
+            "|---|" + "---:|" * len(result.joint_names),
         ]
         for r in angles:
             cells = [

@@ -26,6 +26,7 @@ __all__ = [
     "check_driven",
     "check_group_overrides",
     "check_system",
+    "flag_set_by",
     "validate_diagnose_config",
     "validate_run_config",
 ]
@@ -349,7 +350,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     for key in keys:
         if OmegaConf.select(cfg, key) is not None:
             _flag(cfg, key)
-    nuisances = [k for k in (_set_by(cfg, "record_offsets"), _set_by(cfg, "record_joint_offsets")) if k]
+    nuisances = [k for k in (flag_set_by(cfg, "record_offsets"), flag_set_by(cfg, "record_joint_offsets")) if k]
     if len(nuisances) == 2:
         raise ConfigError(
             f"{nuisances[0]} and {nuisances[1]} are both true: a torque zero and an angle zero per file are nearly "
@@ -358,9 +359,9 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         )
 
 
-def _set_by(cfg: DictConfig, name: str) -> str | None:
-    """The key that makes the flag `name` true as `harness.diagnose` resolves it (`diagnose.<name>` when set, else
-    `data.<name>`), or None where it is false or unset."""
+def flag_set_by(cfg: DictConfig, name: str) -> str | None:
+    """The key that makes the flag `name` true: `diagnose.<name>` when set (not null), else the data config's
+    `data.<name>` (a property of the logs); None where it is false or unset."""
     for where in ("diagnose", "data"):
         value = OmegaConf.select(cfg, f"{where}.{name}")
         if value is not None:

@@ -704,7 +704,8 @@ def diagnose(
         offsets_by_record = full
     fitted_here = fitted_rows if sliding is None else fitted_rows & sliding
     angles_by_record, angle_stds = _record_angles(X, fit, start=m_t, stop=m, fitted=fitted_here, n_records=len(tr))
-    angles_by_record = angles_by_record + rest[: len(angles_by_record)]
+    if angles_by_record.size:
+        angles_by_record = angles_by_record + rest  # the final fit's are increments on the pre-pass's
     base_idx = base_parameters(ParameterModel(plant, ()), rng).independent
     sw = np.sqrt(weights)
     metric: np.ndarray = np.linalg.qr(  # type: ignore[assignment]
