@@ -391,7 +391,13 @@ def _read_header(file: _TextFile) -> tuple[list[str], str]:
     path = file.path
     with file.open() as f:
         first = f.readline()
+        rest = f.read(1 << 16) if not first.strip() else ""
     if not first.strip():
+        if rest.strip():
+            raise DataError(
+                f"{path}: line 1 is blank; the header row of column names must be line 1: remove the blank lines "
+                "above it"
+            )
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
     if first.lstrip().startswith("#"):
         raise DataError(

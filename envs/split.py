@@ -66,9 +66,13 @@ def split_train_validation(
     if not 0.0 < validation_fraction < 1.0:
         raise ValueError(f"validation_fraction must lie in (0, 1), got {validation_fraction}")
     if len(datasets) == 1:
-        if validation:
-            raise ValueError("with a single file the validation data are its last block: set validation_fraction")
         data = datasets[0]
+        if validation:
+            raise ValueError(
+                f"validation names {[str(v) for v in validation]} but only one file was read "
+                f"({Path(data.source).name}): a single file's validation data are its last block (validation_fraction "
+                "of its samples), so leave validation unset (data.validation=null), or give the held-out files too"
+            )
         cut = int(round(data.n_samples * (1.0 - validation_fraction)))
         short = min(cut, data.n_samples - cut)
         if short < min_samples:
@@ -88,7 +92,10 @@ def split_train_validation(
             ]
             if not hits:
                 given = ", ".join(Path(d.source).name for d in datasets)
-                raise ValueError(f"validation file {name!r} is not among the files read: {given}")
+                raise ValueError(
+                    f"validation file {name!r} is not among the files read: {given}; name one of them "
+                    "(data.validation=<file>), or data.validation=null to hold out the last files"
+                )
             held.update(hits)
         if len(held) == len(datasets):
             raise ValueError("every file is held out for validation: none is left to fit on")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import glob
+import json
 import re
 import sys
 import time
@@ -208,6 +209,18 @@ def _mjcf_names(plant: Plant) -> tuple[str, str]:
     return f"{plant.name}_calibrated.xml", f"{plant.name}_calibrated_all.xml"
 
 
+def _previous_mjcf_names(folder: Path, plant: Plant) -> tuple[str, ...]:
+    """The calibrated MJCFs of a finished diagnosis of another system in `folder` (named by its diagnosis.json's
+    `system`): an overwrite retires them with the rest, so that no other run's model is left beside the new one."""
+    try:
+        name = json.loads((folder / "diagnosis.json").read_text()).get("system")
+    except (OSError, ValueError, AttributeError):  # none, unreadable, or not a diagnosis: nothing of ours to retire
+        return ()
+    if not isinstance(name, str) or name == plant.name or not name or Path(name).name != name:
+        return ()
+    return (f"{name}_calibrated.xml", f"{name}_calibrated_all.xml")
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Diagnose `cfg.system` on `cfg.data`; returns diagnosis.json's content.
 
@@ -217,7 +230,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     validate_diagnose_config(cfg)
     plant = as_simulated(load_system(cfg), _hard_friction(cfg))  # the nominal MJCF as the logs' simulator ran it
     cfg = with_model_defaults(cfg, plant)
-    outputs = ("diagnosis.rrd", *_mjcf_names(plant), "diagnosis.json")
+    previous = _previous_mjcf_names(_output_dir(cfg), plant)
+    outputs = ("diagnosis.rrd", *previous, *_mjcf_names(plant), "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
         return _run(cfg, plant, folder)
 

@@ -23,7 +23,7 @@ from dynamics.plant import Plant
 from dynamics.prior import Prior, PriorSpec, make_prior
 from dynamics.regressor import ParameterModel
 from dynamics.torque import joint_torque
-from envs.dataset import Dataset, write_csv
+from envs.dataset import Dataset, atomic_write, write_csv
 from excitation.criteria import conditioning
 from excitation.designs import grid
 from excitation.fourier import FourierDesign
@@ -51,7 +51,8 @@ from identify.problem import Estimate, Problem, build_problem
 
 __all__ = ["main", "run"]
 
-OUTPUTS = ("data.csv", "recording.rrd", "results.json")  # in writing order: results.json marks a finished run
+# in writing order: results.json marks a finished run; model.xml only for a URDF (the MJCF MuJoCo compiled from it)
+OUTPUTS = ("data.csv", "model.xml", "recording.rrd", "results.json")
 
 
 @contextmanager
@@ -346,7 +347,8 @@ def _write_outputs(out: Path, cfg: DictConfig, results: dict, data: Dataset, pro
     write_csv(data, out / "data.csv")
     plant = problem.model.plant
     if plant.source is not None:  # a URDF: the MJCF that MuJoCo compiled from it, and that was used
-        (out / "model.xml").write_text(plant.path.read_text())
+        text = plant.path.read_text()
+        atomic_write(out / "model.xml", lambda f: f.write(text))
     if cfg.record.kind == "rerun":
         from harness.record import record_run
 

@@ -293,6 +293,19 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         raise ConfigError(f"data.path must be a file path or a list of them, got {raw!r}")
     _number(cfg, "seed", integer=True, low=0)
     _flag(cfg, "overwrite")
+    for group in ("data", "diagnose"):  # `diagnose=foo` replaces the whole mapping: every key below reads None
+        node = OmegaConf.select(cfg, group)
+        if not isinstance(node, DictConfig):
+            raise ConfigError(
+                f"{group} must be a mapping of settings (e.g. {group}.<key>=...), got {node!r}; set its keys one by one"
+            )
+    validation = OmegaConf.select(cfg, "data.validation")
+    names = list(validation) if isinstance(validation, ListConfig) else [validation]
+    if validation is not None and (not names or any(not _file_name(v) for v in names)):
+        raise ConfigError(
+            "data.validation must name the held-out file(s) (data.validation=b.csv or '[b.csv,c.csv]'), or be null "
+            f"to hold out the last files (data.validation_fraction of them), got {validation!r}"
+        )
     columns = OmegaConf.select(cfg, "data.columns")
     if columns is not None and not isinstance(columns, DictConfig):
         raise ConfigError(
@@ -345,6 +358,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
         "data.record_joint_offsets",
         "diagnose.check_torque_signs",
         "diagnose.final_fit",
+        "diagnose.recording",
         "system.hard_friction",
     )
     for key in keys:
@@ -357,6 +371,11 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
             "the same column on motions about one pose (on C.1's logs they traded -1.1 N m against -0.38 rad); "
             "set the one the sensors call for"
         )
+
+
+def _file_name(value: Any) -> bool:
+    """A file named on the command line: a non-empty string, or a stem that Hydra read as an integer (`01`)."""
+    return (isinstance(value, str) and bool(value.strip())) or (isinstance(value, int) and not isinstance(value, bool))
 
 
 def flag_set_by(cfg: DictConfig, name: str) -> str | None:
@@ -424,8 +443,12 @@ def check_group_overrides(argv: Sequence[str], conf_dir: Path) -> None:
             continue
         valid = sorted({p.stem for f in folders for p in (f / group).glob("*.yaml")})
         for value in values:
-            if value not in valid and value != "null" and "/" not in value:
-                sweep = f" (in the sweep {arg})" if len(values) > 1 else ""
+            sweep = f" (in the sweep {arg})" if len(values) > 1 else ""
+            if value == "null":  # Hydra raises a bare ValueError: every group of ours needs a choice
+                raise ConfigError(
+                    f"{group}=null{sweep}: {group} needs one of its configs; valid choices: {', '.join(valid)}"
+                )
+            if value not in valid and "/" not in value:
                 raise ConfigError(f"unknown {group} {value!r}{sweep}; valid choices: {', '.join(valid)}")
 
 
@@ -465,15 +488,18 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
             overrides = _first_job(overrides)
         with initialize_config_dir(str(conf_dir), version_base=None):
             compose(config_name, overrides=overrides, return_hydra_config=True)
-            added = [o for o in overrides if o.startswith("+") and not o.startswith("++")]
+            added = [o for o in overrides if o.startswith("+")]  # `+key` and `++key` (adds it where absent)
             if added:  # each new key against the config the other overrides make (or the groups alone)
                 try:
                     base = compose(config_name, overrides=[o for o in overrides if o not in added])
                 except (HydraException, OmegaConfBaseException):
                     base = compose(config_name, overrides=_group_choices(overrides, conf_dir))
                 for o in added:
-                    _check_added_key(base, o[1:].split("=", 1)[0])
-    except (HydraException, OmegaConfBaseException) as err:
+                    plus = "++" if o.startswith("++") else "+"
+                    _check_added_key(base, o[len(plus) :].split("=", 1)[0], plus)
+    except ConfigError:
+        raise
+    except (HydraException, OmegaConfBaseException, ValueError) as err:  # ValueError: Hydra's own, for some values
         lines = [
             ln.strip()
             for ln in str(err).splitlines()
@@ -523,9 +549,12 @@ def _close_key(cfg: DictConfig, key: str) -> str | None:
     return None
 
 
-def _check_added_key(cfg: DictConfig, key: str) -> None:
-    """A `+key=value` whose new key is a near-miss of an existing one (`+system.limts.velocity`, which Hydra's
-    own error suggests for a misspelled key) would be carried along and never read: refused, naming the key."""
+def _check_added_key(cfg: DictConfig, key: str, plus: str = "+") -> None:
+    """A `+key=value` (or `++key=value`, which adds the key where it is absent) whose new key is a near-miss of
+    an existing one (`+system.limts.velocity`, which Hydra's own error suggests for a misspelled key) would be
+    carried along and never read: refused, naming the key. `plus`: the override's prefix, `+` or `++`."""
     hint = _close_key(cfg, key)
     if hint:
-        raise ConfigError(f"+{key}: no such key is read; did you mean {hint}? (+ adds a new key and nothing reads it)")
+        raise ConfigError(
+            f"{plus}{key}: no such key is read; did you mean {hint}? ({plus} adds a new key and nothing reads it)"
+        )

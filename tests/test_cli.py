@@ -97,6 +97,56 @@ def test_malformed_override_is_refused() -> None:
         compose_config(["system.limits.velocity=[1,"])
 
 
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        # Hydra raised a bare ValueError with a traceback ("Config group override must be a string or a list")
+        (["system=null"], r"system=null: system needs one of its configs; valid choices: arm3, auto, pendulum"),
+        (["-m", "estimator=ols,null"], r"estimator=null \(in the sweep estimator=ols,null\): estimator needs one"),
+        # ++ adds a key where it is absent: a misspelled one was carried along and never read
+        (["++validation.period=2"], r"\+\+validation\.period: no such key is read; did you mean validation\.periods"),
+    ],
+)
+def test_a_group_set_to_null_or_a_misspelled_forced_key_is_named(argv: list[str], message: str) -> None:
+    from harness.validate import check_command_line
+
+    with pytest.raises(ConfigError, match=message):
+        check_command_line(argv, REPO / "conf", "config")
+    check_command_line(["++validation.periods=2"], REPO / "conf", "config")  # an existing key: accepted
+
+
+URDF_ARM = """<?xml version="1.0"?>
+<robot name="arm">
+  <link name="base"/>
+  <link name="l1">
+    <inertial><origin xyz="0 0 -0.1"/><mass value="1"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>
+  </link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 1 0"/>
+    <limit lower="-3" upper="3" effort="10" velocity="5"/></joint>
+</robot>
+"""
+
+
+def test_model_xml_is_an_output_never_overwritten_silently_nor_left_behind(tmp_path: Path) -> None:
+    """A URDF run wrote model.xml over a file of that name without overwrite=true, and a later run of another
+    system with overwrite=true left that robot's model.xml beside its own results."""
+    from harness.rundir import RunFolderError
+
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(URDF_ARM)
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.xml").write_text("<mujoco model='mine'/>")
+    with pytest.raises(RunFolderError, match=r"already holds model\.xml"):
+        run(compose_config(["record=none", "system=auto", f"system.mjcf={urdf}"]), output_dir=out)
+    assert (out / "model.xml").read_text() == "<mujoco model='mine'/>"
+    run(compose_config(["record=none", "system=auto", f"system.mjcf={urdf}", "overwrite=true"]), output_dir=out)
+    assert "Compiled by MuJoCo from arm.urdf" in (out / "model.xml").read_text()
+    run(compose_config(["record=none", "system=pendulum", "overwrite=true"]), output_dir=out)
+    assert sorted(p.name for p in out.iterdir()) == ["data.csv", "results.json"]
+
+
 def test_failed_run_leaves_no_results(tmp_path: Path) -> None:
     # an acceleration bound too small for any motion: the excitation cannot be designed
     cfg = compose_config(["record=none", "system=pendulum", "system.limits.acceleration=1e-6"])

@@ -357,3 +357,16 @@ def test_a_joint_frozen_in_every_training_file_is_named_in_the_refusal(tmp_path:
     with pytest.raises(DataError, match=r"joint 'elbow' never moves in any training file .* so the data do not excite"):
         _check_training_excitation(plant, (frozen,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
     _check_training_excitation(plant, (train,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
+
+
+def test_a_band_above_the_state_cut_off_is_lowered_and_said(tmp_path: Path) -> None:
+    """`band_hz` above the cut-off of the state filter is compared at that cut-off, and `notes` says so, naming
+    both and the key that widens it; a band below it is used as asked, with no such note."""
+    plant, train, validation = simulate("two_link", [], seed=100, directory=tmp_path)
+    dg = run_diagnosis(plant, train, validation, effects=("torque_offset",), band_hz=20.0)
+    assert dg.info["band_hz"] == 10.0
+    assert any(n.startswith("band_hz: 20 Hz was asked, the torques are compared below 10 Hz") for n in dg.notes)
+    assert "diagnose.cutoff_hz" in next(n for n in dg.notes if n.startswith("band_hz"))
+    below = run_diagnosis(plant, train, validation, effects=("torque_offset",), band_hz=5.0)
+    assert below.info["band_hz"] == 5.0
+    assert not any(n.startswith("band_hz") for n in below.notes)

@@ -199,6 +199,10 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("data.tau_lead_s=-0.001", r"data\.tau_lead_s must be >= 0, got -0\.001"),
         ("data.tau_lead_s=0.1", r"data\.tau_lead_s=0\.1 s is not below one sample \(0\.002 s\) of .*train\.csv"),
         ("data.tau_lead_s=0.001 diagnose.derivatives=given", r"data\.tau_lead_s=0\.001 s needs states derived"),
+        ("diagnose.recording=maybe", r"diagnose\.recording must be true or false, got 'maybe'"),
+        ("diagnose=foo", r"diagnose must be a mapping of settings .* got 'foo'"),
+        ("data.validation=[]", r"data\.validation must name the held-out file\(s\) .* got \[\]"),
+        ("data.validation={a:1}", r"data\.validation must name the held-out file\(s\) .* got \{'a': 1\}"),
     ],
 )
 def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(
@@ -210,6 +214,18 @@ def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(
     with pytest.raises(ConfigError, match=message):
         cli.run(_config(csv_files, tmp_path, *override.split(" ")))
     assert not any(tmp_path.iterdir())
+
+
+def test_an_overwrite_retires_the_calibrated_models_of_another_systems_diagnosis(
+    csv_files: list[Path], tmp_path: Path
+) -> None:
+    """A folder that held a two_link diagnosis, rediagnosed for the pendulum with overwrite=true, kept
+    two_link_calibrated.xml beside the pendulum's diagnosis.json."""
+    (tmp_path / "diagnosis.json").write_text(json.dumps({"system": "two_link"}))
+    for name in ("two_link_calibrated.xml", "two_link_calibrated_all.xml", "notes.txt"):
+        (tmp_path / name).write_text("old")
+    cli.run(_config(csv_files, tmp_path, "overwrite=true", "diagnose.final_fit=false", "diagnose.recording=false"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["diagnosis.json", "notes.txt", "pendulum_calibrated.xml"]
 
 
 def test_one_validation_file_may_be_given_as_a_string(csv_files: list[Path], tmp_path: Path) -> None:

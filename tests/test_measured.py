@@ -165,6 +165,8 @@ def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant, cell: str) ->
     [
         (None, r"absent\.csv: no such file"),
         ("", r"absent\.csv: the file is empty"),
+        ("\n\n", r"absent\.csv: the file is empty"),
+        ("\n\ntime,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n", r"line 1 is blank; the header row"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"no data rows after the header"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n1,2,3\n", r"row 1 \(line 3\) has 3 fields"),
         ("# logged 2026-11-30\ntime,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"line 1 is a comment \('# logged"),
@@ -527,10 +529,14 @@ def test_split_by_file_and_by_time_block(tmp_path: Path, plant: Plant) -> None:
     assert split.by == "file" and [Path(d.source).name for d in split.validation] == ["run2.csv"]
     named = split_train_validation(datasets, validation=["run0"])
     assert [Path(d.source).name for d in named.train] == ["run1.csv", "run2.csv"]
-    with pytest.raises(ValueError, match="'run9' is not among the files read"):
+    with pytest.raises(ValueError, match=r"'run9' is not among the files read: .*data\.validation=null to hold out"):
         split_train_validation(datasets, validation=["run9"])
     block = split_train_validation(datasets[:1], validation_fraction=0.25)
     assert block.by == "time_block"
+    # a data config's validation file, kept while a single file is given on the command line: the key and the
+    # remedy are named (it said "set validation_fraction", which cannot help)
+    with pytest.raises(ValueError, match=r"validation names \['run2.csv'\] but only one file was read \(run0.csv\)"):
+        split_train_validation(datasets[:1], validation=["run2.csv"])
     (train,), (val,) = block.train, block.validation
     assert (train.n_samples, val.n_samples) == (750, 250) and train.time[-1] < val.time[0]
     assert block.describe()["validation"][0]["n_samples"] == 250

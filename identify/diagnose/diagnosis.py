@@ -617,6 +617,7 @@ def diagnose(
         anomalies = find_anomalies([*train, *validation], plant.hinge, plant.q_range, plant.limit_margin)
     anomalies = list(anomalies)
     options = dict(derivative_options or {})
+    asked_band_hz = band_hz
     band_hz = analysis_band(band_hz, [*train, *validation], derivatives, options)
     tr = _records(plant, train, derivatives, options, band_hz)
     rest = np.zeros((len(tr), plant.nv))  # each training record's angle offset, found before the selection
@@ -853,6 +854,15 @@ def diagnose(
             "outside_training": outside,
         },
         notes=[a.describe() for a in anomalies]
+        + (
+            [
+                f"band_hz: {asked_band_hz:g} Hz was asked, the torques are compared below {band_hz:g} Hz, the cut-off "
+                "of the filter the states went through (above it the model torques hold nothing); a wider band needs "
+                "a higher state cut-off (diagnose.cutoff_hz)"
+            ]
+            if asked_band_hz is not None and band_hz is not None and band_hz < asked_band_hz
+            else []
+        )
         + [
             f"{f.name}: chosen by the selection on the training records ({f.value:.4g} {f.unit}), but with the "
             "effects chosen beside it the held-out error rises: not named"
