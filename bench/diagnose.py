@@ -20,7 +20,9 @@
    chosen. A second table low-passes every model's torque as well (both sides filtered, as the diagnosis
    fits), the other reading of "zero-phase 5 Hz filtering". Each calibrated MJCF is also judged with its
    friction rewritten as wider ramps (`widened`, `RAMPS`): how much each reading depends on the friction's
-   shape near zero speed.
+   shape near zero speed. A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
+   found on that file): the encoders are zeroed wherever each file began, and what a model loses with it known
+   is not the zero.
 3. **What the shared files allow** (`lab_form`): the lab's own model form (`authors.author_regressor`: rigid
    body, rotor inertia through the gear, viscous and atan Coulomb friction) refitted by least squares in the
    judging band, on the same states as the judge, (a) on the other files of the split and (b) on all of the
@@ -50,6 +52,7 @@ import json
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +60,7 @@ import mujoco
 import numpy as np
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
-from scipy import signal
+from scipy import optimize, signal
 
 from bench._coverage import SHARED_ROBOTS as ROBOTS
 from dynamics.friction import friction_solver
@@ -75,6 +78,7 @@ HERE = Path(__file__).resolve().parent
 SHARED = HERE.parents[1] / "shared" / "data"
 JUDGE_HZ = 5.0  # zero-phase low-pass of the judged signals [Hz]
 RAMPS = (0.03, 0.1, 0.3)  # friction ramp widths the calibrated models are also judged with [rad/s]
+ANGLE_ZERO_STEP = 0.05  # [rad] first step of the search for a judged file's own angle zero
 # session -> (data config, folder, the lab's models to beat: the best of them per joint)
 SESSIONS = {
     "C.0": ("dfki_double_pendulum", "dfki_double_pendulum_c0", ("3.0",)),
@@ -114,17 +118,48 @@ def widened(model: mujoco.MjModel, speed: float) -> mujoco.MjModel:
     return out
 
 
+def _angle_zeroed(
+    predict: Callable[[np.ndarray], np.ndarray], q: np.ndarray, measured: np.ndarray, rows: np.ndarray
+) -> tuple[list[float], list[float]]:
+    """A model given the judged file's own angle zero: the constant (nv,) shift d of its angles [rad] (true =
+    reported + d) that minimises the model's squared torque error over every joint, found on the file itself.
+    `predict(q)`: the model's (N, nv) torque at angles q. Returns the (nv,) RMS [N m] at that shift, and d."""
+
+    def cost(d: np.ndarray) -> float:
+        return float(np.sum((measured - predict(q + d)[rows]) ** 2))
+
+    start = np.zeros(q.shape[1])
+    simplex = np.vstack([start, np.diag(np.full(q.shape[1], ANGLE_ZERO_STEP))])
+    d = optimize.minimize(
+        cost, start, method="Nelder-Mead", options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-9}
+    ).x
+    return np.sqrt(np.mean((measured - predict(q + d)[rows]) ** 2, axis=0)).tolist(), d.tolist()
+
+
 def judge(
-    xml_path: Path, authors: dict[str, dict[str, float]], data: Dataset, ramps: tuple[float, ...] = ()
-) -> tuple[dict[str, list[float]], dict[str, list[float]], dict[str, list[float]]]:
+    xml_path: Path,
+    authors: dict[str, dict[str, float]],
+    data: Dataset,
+    ramps: tuple[float, ...] = (),
+    *,
+    angle_zero: bool = False,
+) -> tuple[dict[str, list[float]], dict[str, list[float]], dict[str, list[float]], dict[str, list[list[float]]]]:
     """Per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band, in its two readings: each model
     evaluated unfiltered on the filtered states, and its torque low-passed as well (both sides filtered, as the
     diagnosis fits); third, the first reading's error with its own mean over the file taken out (what is left
-    once a torque zero of the file's own is allowed). `ramps`: also the calibrated model with its friction
-    `widened` to each of these widths [rad/s] (`calibrated_ramp_<width>`)."""
+    once a torque zero of the file's own is allowed); fourth, with `angle_zero` (else empty), the first reading
+    with the file's own angle zero given to each model (`_angle_zeroed`): per model [RMS, shift]. `ramps`: also
+    the calibrated model with its friction `widened` to each of these widths [rad/s] (`calibrated_ramp_<width>`),
+    in the first two readings."""
     states, measured = _judged_states(data)
     rows, fs = states.valid, 1.0 / data.dt
     model = mujoco.MjModel.from_xml_path(str(xml_path))
+    predictors: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+        "calibrated": lambda q: mjcf_measured_torque(model, data.time, q, states.dq, states.ddq)
+    }
+    for name, p in authors.items():
+        predictors[name] = lambda q, p=p: author_torque(p, q, states.dq, states.ddq)  # type: ignore[misc]
+    zeroed = {k: list(_angle_zeroed(f, states.q, measured, rows)) for k, f in predictors.items() if angle_zero}
     preds = {"calibrated": mjcf_measured_torque(model, data.time, states.q, states.dq, states.ddq)}
     for speed in ramps:
         preds[f"calibrated_ramp_{speed:g}"] = mjcf_measured_torque(
@@ -137,7 +172,7 @@ def judge(
         return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in pred.items()}
 
     demeaned = {k: np.std(measured - v[rows], axis=0).tolist() for k, v in preds.items()}
-    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()}), demeaned
+    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()}), demeaned, zeroed
 
 
 def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[list[float]]]:
@@ -228,7 +263,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"
             path.write_text(dg.calibrated_xml)
-            rms, both, demeaned = judge(path, authors, held, RAMPS)
+            rms, both, demeaned, zeroed = judge(path, authors, held, RAMPS, angle_zero=True)
         rms["nominal"] = judge(nominal_xml, {}, held)[0]["calibrated"]
         rms["lab_form_others"], rms["lab_form_all"] = refit["others"][k], refit["all"][k]
         rms["lab_form_self"] = refit["self"][k]
@@ -243,6 +278,8 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
                 "wins": _at_most(rms["calibrated"], best),
                 "both_filtered": both,
                 "demeaned": {k: v for k, v in demeaned.items() if k == "calibrated" or k in authors},
+                "angle_zeroed": {k: v[0] for k, v in zeroed.items()},
+                "angle_zero_shift": {k: v[1] for k, v in zeroed.items()},
                 "wins_both_filtered": _at_most(both["calibrated"], np.min([both[a] for a in authors], axis=0)),
                 "reachable_in_sample": _at_most(rms["lab_form_all"], best),
                 "calibrated_in_sample": _at_most(rms["calibrated_all"], best),
@@ -330,6 +367,12 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             "each model's error less its own mean over the held-out file (a torque zero of that file's own allowed to "
             "every model): how much of a loss is the file's zero",
         ),
+        (
+            "angle_zeroed",
+            "each model given the held-out file's own angle zero (the constant shift of its angles that fits that "
+            "model best, found on the file itself; `angle_zero_shift` in the JSON): what is left once the file's "
+            "encoder zero is known, which no model fitted on other files can know",
+        ),
     ):
         if all(key in s for s in table["splits"]):
             lines += _reading_markdown(table, key, intro)
@@ -383,9 +426,9 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
 
 
 def _totals(tables: dict[str, dict[str, Any]], reading: str, model: str) -> tuple[float, int, int, int]:
-    """Over every split of `tables`, in `reading` (`torque_rms` or `both_filtered`): the sum of `model`'s
-    held-out RMS over the joints, the joints and the splits (every joint) where it is at most the best lab model,
-    and the number of joints."""
+    """Over every split of `tables`, in `reading` (`torque_rms`, `both_filtered` or `angle_zeroed`): the sum of
+    `model`'s held-out RMS over the joints, the joints and the splits (every joint) where it is at most the best lab
+    model, and the number of joints."""
     total, joints, splits, n = 0.0, 0, 0, 0
     for t in tables.values():
         for s in t["splits"]:
@@ -405,7 +448,10 @@ def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
     splits (both joints) at most the lab's best model."""
     n_splits = sum(len(t["splits"]) for t in tables.values())
     lines = []
-    for reading in ("torque_rms", "both_filtered"):
+    every = [s for t in tables.values() for s in t["splits"]]
+    for reading in ("torque_rms", "both_filtered", "angle_zeroed"):
+        if not all(reading in s for s in every):
+            continue  # tables from before the reading was judged
         total, joints, splits, n = _totals(tables, reading, "calibrated")
         won = f"{joints} of {n} joints and {splits} of {n_splits} splits"
         lines.append(f"{reading}: sum {total:.4f} N m, {won} <= the lab's best")

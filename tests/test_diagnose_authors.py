@@ -112,3 +112,42 @@ def test_the_lofo_summary_counts_the_diagnosis_in_sample_bound_on_its_own_line()
     del table["splits"][0]["torque_rms"]["calibrated_all"]  # a table from before the bound: no line, no table
     assert "in-sample" not in lofo_summary({"X": table})
     assert "calibrated, all files" not in _lofo_markdown(table)
+
+
+def test_the_judged_files_own_angle_zero_is_found_on_the_file() -> None:
+    """`bench.diagnose._angle_zeroed` (the reading that gives every model the held-out file's encoder zero): angles
+    logged from a zero 0.07 / 0.05 rad off the model's are put back, and the error left is the noise's."""
+    from bench.diagnose import _angle_zeroed
+
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 10.0, 2000)
+    true_q = np.column_stack([0.8 * np.sin(2.0 * t), 1.1 * np.cos(3.0 * t)])
+    shift = np.array([0.07, 0.05])  # true = logged + shift
+
+    def predict(q: np.ndarray) -> np.ndarray:  # a gravity-like torque, (N, 2)
+        return np.column_stack([2.0 * np.sin(q[:, 0]) + 0.5 * np.sin(q[:, 0] + q[:, 1]), np.sin(q.sum(axis=1))])
+
+    rows = np.arange(10, 1990)
+    measured = predict(true_q)[rows] + rng.normal(0.0, 0.01, (len(rows), 2))
+    rms, found = _angle_zeroed(predict, true_q - shift, measured, rows)
+    np.testing.assert_allclose(found, shift, atol=1e-3)
+    np.testing.assert_allclose(rms, 0.01, rtol=0.1)
+    off = np.sqrt(np.mean((measured - predict(true_q - shift)[rows]) ** 2, axis=0))
+    assert np.all(off > 5 * np.asarray(rms))  # without the zero the same model is far off
+
+
+def test_the_lofo_summary_counts_the_angle_zeroed_reading_where_it_was_judged() -> None:
+    """The summary's `angle_zeroed` line counts that reading's own wins, and is left out for tables judged before
+    it existed."""
+    from bench.diagnose import lofo_summary
+
+    table = {
+        "session": "X",
+        "authors": ["authors_x"],
+        "splits": [_split("a.csv", [0.1, 0.3], [0.1, 0.1], [0.2, 0.2])],
+    }
+    table["splits"][0]["both_filtered"] = table["splits"][0]["torque_rms"]
+    assert "angle_zeroed" not in lofo_summary({"X": table})
+    table["splits"][0]["angle_zeroed"] = {"calibrated": [0.25, 0.05], "authors_x": [0.2, 0.1]}
+    line = lofo_summary({"X": table}).split("\n")[2]
+    assert line == "angle_zeroed: sum 0.3000 N m, 1 of 2 joints and 0 of 1 splits <= the lab's best"
