@@ -25,6 +25,8 @@ def write_inertial(spec: mujoco.MjSpec, body_name: str, params: np.ndarray) -> N
         raise ValueError(f"unknown body {body_name!r} in the MJCF")
     if not is_consistent(params):
         raise ValueError(f"body {body_name!r}: the inertial parameters are not physically consistent: {params}")
+    if spec.compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE:
+        _freeze_geom_inertials(spec)  # else the compiler replaces what is written here by the geoms' inertia
     m, c, inertia = mass_com_inertia(params)
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
@@ -35,3 +37,24 @@ def write_inertial(spec: mujoco.MjSpec, body_name: str, params: np.ndarray) -> N
     body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])  # MjSpec's "not given"
     body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     body.explicitinertial = True
+
+
+def _freeze_geom_inertials(spec: mujoco.MjSpec) -> None:
+    """Under `<compiler inertiafromgeom="true">` MuJoCo computes every body's inertial from its geoms, an explicit
+    `<inertial>` included: one written would be ignored. Every body's inertial is written as the model compiles
+    it now, and the compiler switched to `auto` (geoms decide only where a body has no inertial), so that the
+    model is the same and an inertial written afterwards is the one compiled."""
+    model = spec.compile()
+    bodies = list(spec.bodies)  # in the compiled order, the world first
+    if len(bodies) != model.nbody:
+        raise ValueError(f"the MJCF's {len(bodies)} bodies do not match the {model.nbody} it compiles to")
+    for b in range(1, model.nbody):
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b)
+        body = spec.body(name) if name else bodies[b]
+        body.mass, body.ipos = float(model.body_mass[b]), model.body_ipos[b].copy()
+        body.iquat = model.body_iquat[b].copy()
+        body.inertia = model.body_inertia[b].copy()
+        body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])
+        body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+        body.explicitinertial = True
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
