@@ -16,8 +16,12 @@ Mapping (what each finding becomes in `<system>_calibrated.xml`):
                                    parameters
     joint_offset                   joint `ref` (the joint value of the model's pose): MuJoCo's qpos is then
                                    the measured angle
-    torque_offset, torque_gain     the actuator becomes `general` with gainprm = 1/gain and biasprm =
-                                   -offset/gain: driven by the measured torque as ctrl, it applies the true one
+    torque_offset, torque_gain     the sensor: a `numeric` sysid_torque_sensor_<joint> [gain, offset] (the
+                                   reported torque is gain x the applied one + offset), read back by
+                                   `mjcf_measured_torque`; and a motor (ctrl a torque, not a set point) becomes
+                                   `general` with gainprm = 1/gain and biasprm = -offset/gain (both over its
+                                   gear and nominal gain): driven by the measured torque as ctrl, it applies
+                                   the true one. A servo's ctrl is a set point: its simulation needs neither
     rotor_coupling                 the off-diagonal inertia rho = Ir gr between joint j and its ancestors (rotor
                                    on the parent link) has no joint attribute; it is written exactly as rho
                                    about the axis added to the child body's inertia, rho taken from the parent
@@ -447,12 +451,11 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         gain, off = float(ext.torque_gain[j]), float(ext.torque_offset[j])
         if gain == 1.0 and off == 0.0:
             continue
+        numeric = spec.add_numeric()  # what the sensor reports of the applied torque, for any actuator
+        numeric.name = f"sysid_torque_sensor_{plant.joint_names[j]}"
+        numeric.data = [gain, off]
         if plant.actuation.actuators[a].state_dependent:
-            ext.notes.append(
-                f"{plant.joint_names[j]}: a torque gain or offset on a servo actuator (its force depends on the "
-                "joint's state, its ctrl is a set point) has no actuator attribute to hold it; left out"
-            )
-            continue
+            continue  # a servo's ctrl is a set point: the sensor's gain and offset do not enter its simulation
         act = spec.actuators[a]
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         act.gainprm[0] = float(m.actuator_gainprm[a, 0]) / gain
@@ -554,9 +557,11 @@ def mjcf_measured_torque(
 
     MuJoCo's inverse dynamics (`mj_inverse`: inertia, armature, damping, stiffness, frictionloss as MuJoCo
     applies it), plus the documented `sysid_*` custom numerics MuJoCo has no attribute for (see the module
-    docstring), delayed by `sysid_time_delay_<joint>`, then through the inverse of each actuator's affine
-    gain and bias (the calibrated actuators turn the reported torque into the applied one). This is how
-    the benchmark judges a calibrated file without any of the diagnosis's own objects.
+    docstring), delayed by `sysid_time_delay_<joint>`, then as the sensor reports it: gain x torque + offset
+    where `sysid_torque_sensor_<joint>` [gain, offset] says so; else less a motor's own constant bias force
+    (gear x biasprm[0]: the actuator applies it whatever the ctrl). The joint torque, whatever the actuator's
+    gear and gain (`tau_<joint>` of the measured-data format). This is how the benchmark judges a calibrated
+    file without any of the diagnosis's own objects.
 
     Args:
         model: the compiled calibrated MJCF.
@@ -583,13 +588,12 @@ def mjcf_measured_torque(
         if delay is not None and delay[0] != 0:
             out[:, j] = np.interp(time - float(delay[0]), time, applied[:, j])
     for a, act in enumerate(actuation_of(model, "the calibrated MJCF").actuators):
-        if act.state_dependent:
-            continue  # a servo reports the force it applies: no sensor mapping to invert
         j = int(model.jnt_dofadr[model.actuator_trnid[a, 0]])
-        gear, gain, bias = float(model.actuator_gear[a, 0]), float(model.actuator_gainprm[a, 0]), 0.0
-        if model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE:
-            bias = float(model.actuator_biasprm[a, 0])
-        out[:, j] = (out[:, j] / gear - bias) / gain
+        sensor = _numeric(model, f"sysid_torque_sensor_{names[model.actuator_trnid[a, 0]]}")
+        if sensor is not None:
+            out[:, j] = sensor[0] * out[:, j] + sensor[1]
+        elif not act.state_dependent and model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE:
+            out[:, j] -= float(model.actuator_gear[a, 0]) * float(model.actuator_biasprm[a, 0])
     return out
 
 
