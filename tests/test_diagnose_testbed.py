@@ -776,3 +776,32 @@ def test_a_nominal_friction_of_any_solver_parameters_is_read_as_mujoco_applies_i
         return
     assert [(f.effect, f.target) for f in dg.findings] == [expected]
     assert abs(dg.findings[0].value - effects[0].size) < 3 * dg.findings[0].std
+
+
+def test_a_torque_lead_left_undeclared_is_pointed_out_with_its_size() -> None:
+    """The testbed holds each torque over a sample: it acts 0.75 ms after its row (`tau_lead_s`). Declared, no
+    lead is seen; left at 0, `notes` says the torque leads the motion by about that much (within 3 std of it) and
+    names data.tau_lead_s. (A lead is physical where a delay below zero is not: the selection's `time_delay` is
+    bounded at 0, and what stood in for a lead was armature and a negative change of damping.)"""
+    import dataclasses
+
+    from identify.diagnose import diagnose
+    from identify.diagnose.testbed import rollout
+
+    rngs = np.random.default_rng(0).spawn(2)
+    plant, train = rollout("two_link", [], rng=rngs[0], duration_s=10.0)
+    _, val = rollout("two_link", [], rng=rngs[1], duration_s=5.0, source="testbed_validation")
+    truth = train.tau_lead_s
+    assert truth == pytest.approx(0.75e-3)
+    for declared in (truth, 0.0):
+        records = [dataclasses.replace(d, tau_lead_s=declared) for d in (train, val)]
+        dg = diagnose(
+            plant, records[:1], records[1:], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}
+        )
+        lead = dg.info["torque_lead"]
+        notes = [n for n in dg.notes if n.startswith("the measured torque leads the motion")]
+        if declared:
+            assert abs(lead["delay_s"]) < 3 * lead["std_s"] and not notes, (lead, notes)
+        else:
+            assert abs(lead["delay_s"] + truth) < 3 * lead["std_s"], lead
+            assert len(notes) == 1 and "data.tau_lead_s" in notes[0] and "(now 0 s)" in notes[0], dg.notes

@@ -682,6 +682,7 @@ def diagnose(
     z_floor = selection.min_z_records if len(tr) > 1 else selection.min_z  # the most lenient the selection asks
     sliding = _sliding_rows(s_tr, steps, names)
     X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None)
+    lead = _torque_lead(plant, steps, X, s_tr, weights, m)
     fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
     sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
         names[j]: float(np.mean(~sliding[fitted_rows[:, j], j]))
@@ -852,8 +853,10 @@ def diagnose(
             "held_by_nominal_friction": at_rest,
             "left_out_at_limit": at_stops,
             "outside_training": outside,
+            "torque_lead": None if lead is None else {"delay_s": lead[0], "std_s": lead[1]},
         },
         notes=[a.describe() for a in anomalies]
+        + _lead_note(lead, float(min(d.dt for d in train)), float(train[0].tau_lead_s))
         + (
             [
                 f"band_hz: {asked_band_hz:g} Hz was asked, the torques are compared below {band_hz:g} Hz, the cut-off "
@@ -1620,6 +1623,48 @@ def _final_fit(
     for c, j, r in offsets:
         coef[c] += shift[0 if r is None else 1 + r, j]
     return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time), left
+
+
+LEAD_Z = 4.0  # a torque lead beside the effects named is pointed out where it is this many std from zero ...
+LEAD_SAMPLES = 0.2  # ... and at least this share of a sample
+
+
+def _lead_note(lead: tuple[float, float] | None, dt: float, declared: float) -> list[str]:
+    """The note on a torque that leads the motion (`_torque_lead`), where it is clear of zero and of round-off."""
+    if lead is None or not (lead[0] < -LEAD_SAMPLES * dt and -lead[0] > LEAD_Z * lead[1]):
+        return []
+    return [
+        f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
+        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named): a torque held over each sample and logged "
+        "at its start acts centred half a sample after its row, which data.tau_lead_s declares "
+        f"(now {declared:g} s); a lead left undeclared is fitted as armature and a negative change of damping"
+    ]
+
+
+def _torque_lead(
+    plant: Plant, steps: list[Step], X: np.ndarray, s: Signals, weights: np.ndarray, n_nuisance: int
+) -> tuple[float, float] | None:
+    """(delay, std) [s] of the measured torque against the motion, one for every actuated joint, fitted without
+    a bound beside the chosen columns `X`: negative where the torque leads the states (a torque held over each
+    sample and logged at its start, read as acting at its row: `Dataset.tau_lead_s`). The selection's
+    `time_delay` is bounded at 0, and what stands in for a lead there is armature and a negative change of damping
+    (a lead of h scales the torque's rate, M x jerk + ...: -h w^2 M dq at a frequency w). None: no actuated joint.
+    """
+    pool = candidates(plant, ["time_delay"], np.random.default_rng(0), s)
+    if not pool:
+        return None
+    lead = sum(s.columns(c) for c in pool)  # (N, nv, 1): each actuated joint's -d tau / dt on its own row
+    lo, hi = _step_bounds(steps, n_nuisance)
+    fit = fit_columns(
+        np.concatenate([X, lead], axis=2),
+        s.residual,
+        weights,
+        lower=np.append(lo, -np.inf),
+        upper=np.append(hi, np.inf),
+        record=s.record,
+        used=s.used,
+    )
+    return float(fit.coef[-1]), float(np.sqrt(fit.cov[-1, -1]))
 
 
 def _step_bounds(steps: list[Step], n_nuisance: int) -> tuple[np.ndarray, np.ndarray]:
