@@ -528,6 +528,11 @@ def _group_choices(overrides: list[str], conf_dir: Path) -> list[str]:
 
 # mappings whose keys are the user's own names (a file's columns): a new key there is not a typo of a sibling
 _FREE_KEYS = ("data.columns",)
+# names people reach for that no spelling distance finds: (the mapping, the name) -> the key that is read
+_SYNONYMS = {
+    **{("system", k): "mjcf" for k in ("path", "file", "model", "xml", "urdf")},
+    **{("data", k): "path" for k in ("file", "files", "csv")},
+}
 
 
 def _close_key(cfg: DictConfig, key: str) -> str | None:
@@ -543,6 +548,9 @@ def _close_key(cfg: DictConfig, key: str) -> str | None:
         if part not in node:
             if ".".join(parts[:i]) in _FREE_KEYS:
                 return None
+            synonym = _SYNONYMS.get((".".join(parts[:i]), part))
+            if synonym is not None and synonym in node.keys():  # `in node` is False for a value still missing
+                return ".".join([*parts[:i], synonym, *parts[i + 1 :]])
             match = difflib.get_close_matches(part, [str(k) for k in node.keys()], n=1, cutoff=0.75)
             return ".".join([*parts[:i], match[0], *parts[i + 1 :]]) if match else None
         node = node[part]

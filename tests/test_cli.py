@@ -189,3 +189,20 @@ def test_the_derivative_cut_off_rises_where_coulomb_friction_is_fitted() -> None
     assert _derivative_options(plain, design)["cutoff_hz"] == 5.0
     assert _derivative_options(dry, design)["cutoff_hz"] == COULOMB_MIN_CUTOFF_HZ == 15.0
     assert _derivative_options(fixed, design)["cutoff_hz"] == 7.0
+
+
+@pytest.mark.parametrize(
+    ("argv", "config", "message"),
+    [
+        (["system.path=/tmp/arm.xml"], "config", r"Key 'path' is not in struct; did you mean system\.mjcf\?"),
+        (["system.urdf=/tmp/arm.urdf"], "config", r"did you mean system\.mjcf\?"),
+        (["data.file=/tmp/log.csv"], "diagnose", r"Key 'file' is not in struct; did you mean data\.path\?"),
+    ],
+)
+def test_the_names_people_reach_for_point_to_the_key_that_is_read(argv: list[str], config: str, message: str) -> None:
+    """No spelling distance takes `system.path` to `system.mjcf` (or `data.file` to `data.path`, a value still
+    missing there): the refusal names the key anyway."""
+    from harness.validate import check_command_line
+
+    with pytest.raises(ConfigError, match=message):
+        check_command_line(argv, REPO / "conf", config)
