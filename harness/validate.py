@@ -136,8 +136,10 @@ def _check_estimator(cfg: DictConfig) -> None:
     from identify.estimators import ESTIMATORS, OPTION_RANGES
 
     name = _choice(cfg, "estimator.name", list(ESTIMATORS))
-    options = _value(cfg, "estimator.options") or {}
-    if not isinstance(options, DictConfig):
+    options = _value(cfg, "estimator.options")
+    if options is None:
+        return  # none given: the estimator's own defaults
+    if not isinstance(options, DictConfig):  # an empty mapping (`options: {}`, ols) is one too
         raise ConfigError(f"estimator.options must be a mapping of option names to values, got {options!r}")
     params = list(inspect.signature(ESTIMATORS[name]).parameters.values())[1:]
     accepted = {p.name: p for p in params if p.kind == inspect.Parameter.KEYWORD_ONLY}

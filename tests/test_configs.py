@@ -30,12 +30,17 @@ def test_every_system_config_composes_and_loads(system: str) -> None:
 
 
 @pytest.mark.parametrize("group", ["estimator", "excitation", "noise", "record"])
-def test_every_option_of_a_group_composes(group: str) -> None:
+def test_every_option_of_a_group_composes_and_passes_the_checks(group: str) -> None:
+    """Each shipped option is accepted by the checks `sysid-run` makes before it runs (`estimator=ols`, whose
+    `options: {}` is an empty mapping, was refused as not being one)."""
+    from harness.validate import validate_run_config
+
     known = {"estimator": ESTIMATORS, "excitation": EXCITATIONS}.get(group)
     for option in _options(group):
         cfg = compose_config([f"{group}={option}"])
         if known is not None:
             assert cfg[group].name in known, (group, option)
+        validate_run_config(cfg)
 
 
 def test_slurm_launcher_config_composes() -> None:
