@@ -87,6 +87,12 @@ def summary_table(results: dict[str, Any]) -> str:
             "physics step is too coarse for the tracking loop: check the MJCF's ctrlrange, forcerange and timestep); "
             "the data hold the motion that ran"
         )
+    for joint, miss in (sim or {}).get("not_following", {}).items():
+        lines.append(
+            f"WARNING: joint {joint} did not follow the design: up to {miss['error']:.3g} from its designed angles, "
+            f"whose swing is {miss['swing']:.3g} either way (rad, or m for a slide): held in its friction, or its "
+            "controller too weak for it (system.controller.bandwidth_hz); its data say little of its parameters"
+        )
     poor = ex.get("poorly_excited", {})
     if poor.get("directions"):
         lines.append(

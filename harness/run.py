@@ -78,6 +78,9 @@ SIMULATED_MARGIN = 0.05
 # a servo (which has no velocity feed-forward) brakes that initial speed at its force range for a few samples
 # (57,000 rad/s^2 in the first sample of the Gen3's wrist); six time constants of the 4 Hz tracking loop
 SETTLE_S = 0.25
+# a joint whose largest distance from the designed angles exceeds this share of its designed swing (half the
+# peak-to-peak) did not follow the design: stuck in its friction, or its controller too weak for it
+FOLLOW_SHARE = 0.5
 
 
 def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torque_driven: bool) -> dict[str, Any]:
@@ -120,12 +123,20 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
     ratios = limits.ratios(q, dq, ddq, tau)
     out: dict[str, Any] = {"ratios": ratios, "from_s": float(data.time[rows][0] - data.time[0])}
     if not torque_driven:
-        err = np.abs(q - design.evaluate(data.time[rows])[0]).max(axis=0)
+        target = design.evaluate(data.time[rows])[0]
+        err = np.abs(q - target).max(axis=0)
         out["tracking_error_max"] = dict(zip(limits.joint_names, err.tolist(), strict=True))
+        swing = 0.5 * (target.max(axis=0) - target.min(axis=0))
+        out["not_following"] = {
+            name: {"error": float(e), "swing": float(w)}
+            for name, e, w in zip(limits.joint_names, err, swing, strict=True)
+            if e > FOLLOW_SHARE * w
+        }
     key = limits.binding_key(ratios)
     out["holds"] = bool(ratios[key] <= 1.0 + SIMULATED_MARGIN)
-    if key == "clearance":
-        out["worst"] = f"{limits.binding(ratios)} at {ratios[key]:.3g} x its bound"
+    if key == "clearance" and limits.clearance is not None:  # its ratio is the bound over the distance kept
+        kept = limits.clearance.clearance_m / ratios[key] if np.isfinite(ratios[key]) else 0.0
+        out["worst"] = f"{limits.binding(ratios)}: {kept:.3g} m at the closest"
     else:
         per_joint = limits.joint_ratios(q, dq, ddq, tau)[key]
         j = int(np.argmax(per_joint))

@@ -107,6 +107,35 @@ def test_a_motion_that_breaks_the_limits_is_named_and_flagged(tmp_path: Path) ->
     assert "limits hold\n" in summary_table(_results(held))
 
 
+def test_a_joint_that_does_not_follow_the_design_is_warned_of(tmp_path: Path) -> None:
+    """A dry friction the nominal model does not know and its controller's gains cannot break: the joint barely
+    moves, stays inside every limit (so `holds`), and was reported as a good run (a 5 g finger held 1.57 rad off
+    its design). Now `not_following` names it, and the summary warns."""
+    actuator = '<motor joint="j0" ctrlrange="-20 20"/>'
+    nominal = _plant(tmp_path, actuator, name="free")
+    stuck = plant_from_xml(
+        _ONE.format(name="stuck", world="", actuator=actuator).replace(
+            'range="-2 2"', 'range="-2 2" frictionloss="12"'
+        ),
+        "stuck",
+        tmp_path,
+    )
+    limits = limits_for(nominal, velocity=20.0, acceleration=100.0, range_margin=0.0)
+    reference = _Swing(0.5)
+    sensor = SensorModel(sample_rate_hz=500)
+    data = simulate_tracking(
+        stuck, reference, duration_s=2.0, sensor=sensor, rng=np.random.default_rng(0), nominal=nominal
+    )
+    motion = simulated_motion(reference, limits, data, torque_driven=False)  # type: ignore[arg-type]
+    assert motion["holds"]  # nothing broken: it does not move
+    miss = motion["not_following"]["j0"]
+    assert miss["swing"] == pytest.approx(0.5, rel=0.01) and miss["error"] > 0.25
+    assert "WARNING: joint j0 did not follow the design: up to" in summary_table(_results(motion))
+    followed = simulated_motion(reference, limits, _track(nominal, reference), torque_driven=False)  # type: ignore[arg-type]
+    assert followed["not_following"] == {}
+    assert "did not follow" not in summary_table(_results(followed))
+
+
 def test_a_motion_that_presses_geoms_together_is_refused_by_name(tmp_path: Path) -> None:
     """A link swinging into a world-fixed block: the contact force would be fitted as inertia and friction."""
     plant = _plant(
@@ -168,3 +197,21 @@ def _results(motion: dict) -> dict:
         "validation": {"torque_rms": {"j0": 0.1}, "noise_std": {"j0": 0.01}},
         "timing_s": {"setup": 0.1},
     }
+
+
+def test_a_broken_clearance_says_the_distance_kept(tmp_path: Path) -> None:
+    """Its ratio is the bound over the distance: "at 1.19 x its bound" read as more room than asked. A
+    horizontal rod 15 cm above the floor (z = 0) swings by 0.3 rad: its 2 cm thick tip comes within
+    0.15 - 0.3 sin(0.3) - 0.02 = 0.041 m of it, where 0.1 m are asked."""
+    xml = """<mujoco model="low"><compiler angle="radian"/><option timestep="0.002"/><worldbody>
+      <body name="arm" pos="0 0 0.15"><joint name="j0" axis="0 1 0" range="-2 2"/>
+        <geom name="rod" type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="1"/></body></worldbody>
+      <actuator><motor joint="j0" ctrlrange="-20 20"/></actuator></mujoco>"""
+    plant = plant_from_xml(xml, "low", tmp_path)
+    limits = limits_for(plant, velocity=20.0, acceleration=100.0, range_margin=0.0, clearance_m=0.1)
+    motion = simulated_motion(_Swing(0.3), limits, _track(plant, _Swing(0.3)), torque_driven=False)  # type: ignore[arg-type]
+    assert not motion["holds"]
+    kept = re.search(
+        r"^clearance \(at least 0\.1 m between links and to the floor\): ([\d.]+) m at the closest$", motion["worst"]
+    )
+    assert kept is not None and float(kept.group(1)) == pytest.approx(0.041, abs=0.003), motion["worst"]
