@@ -109,7 +109,8 @@ class Prior:
         return {
             **self.spec.to_dict(),
             "seed": self.seed,
-            "path": str(self.plant.path),
+            # the MJCF a prior of kind "mjcf" was read from; a perturbed prior is compiled in memory, never written
+            "path": str(self.plant.path) if self.spec.kind == "mjcf" else None,
             "mass_rel_error": mass_err,
             "is_truth": bool(np.array_equal(self.theta, truth)),
         }

@@ -94,6 +94,11 @@ def on_actuated(plant: Plant, shape: FourierDesign) -> FourierDesign:
     return FourierDesign(shape.base_freq_hz, shape.a * mask, shape.b * mask, np.zeros(plant.nv))
 
 
+def _units(plant: Plant) -> str:
+    """The unit of the joints' motion: rad, m for slides, or both where they mix."""
+    return " or ".join(sorted(set(plant.position_units), reverse=True))
+
+
 def _centre(limits: Limits) -> np.ndarray:
     finite = np.isfinite(limits.q_min) & np.isfinite(limits.q_max)
     return np.where(finite, 0.5 * (np.where(finite, limits.q_min, 0) + np.where(finite, limits.q_max, 0)), 0.0)
@@ -145,7 +150,7 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
     motion = float(np.max(np.maximum(up, down)) * s_hi)
     if motion < min_motion_rad:
         raise limits.infeasible(
-            f"the limits allow at most {motion:.3g} rad of motion (< {min_motion_rad} rad)", {binding: 1.0}
+            f"the limits allow at most {motion:.3g} {_units(plant)} of motion (< {min_motion_rad})", {binding: 1.0}
         )
     return shape.scaled(s_hi)
 

@@ -282,3 +282,16 @@ def test_optimised_design_identifies_with_smaller_std_than_random_ones() -> None
     # per parameter it is better on average too (the gravity parameters gain least: random designs of
     # the arm already sweep whole turns, and g bounds their columns)
     assert np.mean(std_opt / np.median(std_rand, axis=0)) < 0.8
+
+
+def test_a_slide_with_no_room_is_refused_in_metres(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The refusal gave a slide's motion in rad."""
+    from dynamics.plant import plant_from_xml
+
+    xml = """<mujoco model="lift"><worldbody><body name="carriage"><joint name="lift" type="slide" axis="0 0 1"
+      range="-0.005 0.005"/><geom type="box" size="0.05 0.05 0.05" mass="2"/></body></worldbody>
+      <actuator><motor joint="lift" ctrlrange="-100 100"/></actuator></mujoco>"""
+    plant = plant_from_xml(xml, "lift", tmp_path)
+    limits = limits_for(plant, velocity=0.5, acceleration=5.0, range_margin=0.0)
+    with pytest.raises(InfeasibleExcitationError, match=r"the limits allow at most 0\.00\d+ m of motion \(< 0\.02\)"):
+        default_design(plant, limits, harmonics=3, base_freq_hz=0.2)

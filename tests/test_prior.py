@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -36,6 +38,7 @@ def test_perturbed_prior_is_consistent_within_its_spread_and_never_the_truth(sys
         assert np.all(np.abs(armature - plant.armature) <= 0.3 * plant.armature + 1e-15)
         assert np.all(prior.theta[n_rb + plant.nv :] == 0)  # friction unknown
         assert prior.summary(truth)["is_truth"] is False
+        assert prior.summary(truth)["path"] is None  # compiled in memory: no file to point at (it named one)
 
 
 def test_prior_plant_drives_feedforward_with_its_own_wrong_inertials() -> None:
@@ -60,6 +63,7 @@ def test_prior_refuses_the_truth() -> None:
     # on real data the system's MJCF is the user's nominal model, and it is the prior
     nominal = make_prior(model, PriorSpec(kind="mjcf"), np.random.default_rng(0), simulated=False)
     np.testing.assert_array_equal(nominal.theta, model.truth())
+    assert Path(nominal.summary(model.truth())["path"]).is_file()
     with pytest.raises(ValueError, match="valid choices: mjcf, perturbed"):
         PriorSpec(kind="cad")
     with pytest.raises(ValueError, match="valid keys"):
