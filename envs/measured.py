@@ -624,6 +624,11 @@ def _resolve_columns(
         if key not in spec and key in where:
             spec[key] = (key, 1.0, 0.0)
     missing = [k for k, required in targets.items() if required and k not in spec]
+    if missing and len(header) == 1 and len(header[0].split()) > 1:  # one column whose name is the whole header
+        raise DataError(
+            f"{src}: the header row is one column, {header[0][:60]!r}: the file seems separated by spaces; save it "
+            "with commas (or semicolons, or tabs) between the columns"
+        )
     if missing:
         raise DataError(f"{src}: missing column(s) {', '.join(missing)} (needed for {plant.name}); {listing}")
     out: dict[str, _Column] = {}

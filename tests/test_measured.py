@@ -167,6 +167,7 @@ def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant, cell: str) ->
         ("", r"absent\.csv: the file is empty"),
         ("\n\n", r"absent\.csv: the file is empty"),
         ("\n\ntime,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n", r"line 1 is blank; the header row"),
+        ("time q_shoulder q_elbow tau_shoulder tau_elbow\n0 1 2 3 4\n", r"the file seems separated by spaces"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"no data rows after the header"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n1,2,3\n", r"row 1 \(line 3\) has 3 fields"),
         ("# logged 2026-11-30\ntime,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"line 1 is a comment \('# logged"),
