@@ -127,6 +127,18 @@ def _geared_two_link(directory: Path):  # type: ignore[no-untyped-def]
     return plant_from_xml(text, "geared_two_link", directory)
 
 
+def _general_two_link(directory: Path):  # type: ignore[no-untyped-def]
+    """The built-in two-link arm whose shoulder is a `general` actuator of gear 2, gain 3 and a constant force."""
+    text = (REPO / "mjcf" / "two_link.xml").read_text()
+    text = text.replace(
+        '<motor name="shoulder" joint="shoulder" gear="1" ctrllimited="true" ctrlrange="-12 12"/>',
+        '<general name="shoulder" joint="shoulder" gear="2" gainprm="3" biastype="affine" biasprm="0.5 0 0" '
+        'ctrllimited="true" ctrlrange="-4 4"/>',
+    )
+    assert "general" in text
+    return plant_from_xml(text, "general_two_link", directory)
+
+
 def test_a_calibrated_files_torque_is_the_diagnosis_own_prediction_for_gears_and_servos(tmp_path: Path) -> None:
     """`mjcf_measured_torque` (the file alone, as the bench and a user judge it) says what the diagnosis predicts
     (`predict_measured_torque`, from its own objects): the joint torque whatever the motor's gear (it returned the
@@ -137,7 +149,7 @@ def test_a_calibrated_files_torque_is_the_diagnosis_own_prediction_for_gears_and
     rng = np.random.default_rng(0)
     q, dq, ddq = (rng.uniform(-1, 1, (60, 2)) for _ in range(3))
     time = np.arange(60) * 0.002
-    for plant in (_geared_two_link(tmp_path), _servo_two_link(tmp_path)):
+    for plant in (_geared_two_link(tmp_path), _servo_two_link(tmp_path), _general_two_link(tmp_path)):
         np.testing.assert_allclose(
             mjcf_measured_torque(plant.mj_model, time, q, dq, ddq),
             inverse_dynamics(plant.mj_model, q, dq, ddq),
@@ -154,3 +166,25 @@ def test_a_calibrated_files_torque_is_the_diagnosis_own_prediction_for_gears_and
         np.testing.assert_allclose(got, want, atol=1e-9)
         true = inverse_dynamics(plant.mj_model, q, dq, ddq)
         np.testing.assert_allclose(got, true * [1.08, 0.93] + [0.05, -0.03], atol=1e-9)
+
+
+def test_the_replay_applies_the_joint_torque_whatever_the_actuator_and_the_sensor(tmp_path: Path) -> None:
+    """`mujoco_stepper` (the diagnosis's re-started simulation) drove ctrl = tau / gear, so an actuator of gain 3
+    applied three times the logged torque. On the arm with a gear-2, gain-3 shoulder with a constant force, and on
+    its calibrated file with a sensor gain and offset, it now moves as the plain-motor arm does under the torque
+    applied (the logged one less the offset, over the gain)."""
+    from identify.diagnose.calibrate import Extension, calibrated_xml
+
+    plain = mujoco.MjModel.from_xml_path(str(REPO / "mjcf" / "two_link.xml"))
+    general = _general_two_link(tmp_path)
+    ext = Extension.none(general)
+    ext.torque_gain[:] = [1.1, 0.95]
+    ext.torque_offset[:] = [0.2, -0.1]
+    calibrated = mujoco.MjModel.from_xml_string(calibrated_xml(general, ext))
+    rng = np.random.default_rng(0)
+    q0, dq0 = rng.uniform(-1, 1, (3, 2)), rng.uniform(-1, 1, (3, 2))
+    tau = rng.uniform(-1, 1, (3, 40, 2))
+    applied = (tau - [0.2, -0.1]) / [1.1, 0.95]
+    want = mujoco_stepper(plain)[0](q0, dq0, applied, 0.0)
+    np.testing.assert_allclose(mujoco_stepper(general.mj_model)[0](q0, dq0, applied, 0.0), want, atol=1e-12)
+    np.testing.assert_allclose(mujoco_stepper(calibrated)[0](q0, dq0, tau, 0.0), want, atol=1e-9)

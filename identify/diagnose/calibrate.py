@@ -49,7 +49,6 @@ import mujoco
 import numpy as np
 from scipy import optimize
 
-from dynamics.actuators import actuation_of
 from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed, kept_ramp
 from dynamics.inertia import (
     body_and_jacobian,
@@ -78,6 +77,7 @@ __all__ = [
     "frictionloss_mapping",
     "mjcf_measured_torque",
     "predict_measured_torque",
+    "torque_sensor",
 ]
 
 
@@ -457,10 +457,11 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
         if plant.actuation.actuators[a].state_dependent:
             continue  # a servo's ctrl is a set point: the sensor's gain and offset do not enter its simulation
         act = spec.actuators[a]
+        own_bias = float(m.actuator_biasprm[a, 0]) if m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE else 0.0
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         act.gainprm[0] = float(m.actuator_gainprm[a, 0]) / gain
-        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
-        act.biasprm[0] = -off / (gain * float(m.actuator_gear[a, 0]))
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE  # the actuator's own constant force kept, the offset's added
+        act.biasprm[0] = (own_bias - off / float(m.actuator_gear[a, 0])) / gain
     for j, name in enumerate(plant.joint_names):
         if ext.rotor_coupling.size and ext.rotor_coupling[j] != 0:
             numeric = spec.add_numeric()
@@ -557,11 +558,10 @@ def mjcf_measured_torque(
 
     MuJoCo's inverse dynamics (`mj_inverse`: inertia, armature, damping, stiffness, frictionloss as MuJoCo
     applies it), plus the documented `sysid_*` custom numerics MuJoCo has no attribute for (see the module
-    docstring), delayed by `sysid_time_delay_<joint>`, then as the sensor reports it: gain x torque + offset
-    where `sysid_torque_sensor_<joint>` [gain, offset] says so; else less a motor's own constant bias force
-    (gear x biasprm[0]: the actuator applies it whatever the ctrl). The joint torque, whatever the actuator's
-    gear and gain (`tau_<joint>` of the measured-data format). This is how the benchmark judges a calibrated
-    file without any of the diagnosis's own objects.
+    docstring), delayed by `sysid_time_delay_<joint>`, then as the sensor reports it (`torque_sensor`: gain x
+    torque + offset). The joint torque the actuator applies, whatever its gear, gain and constant force
+    (`tau_<joint>` of the measured-data format). This is how the benchmark judges a calibrated file without
+    any of the diagnosis's own objects.
 
     Args:
         model: the compiled calibrated MJCF.
@@ -587,14 +587,19 @@ def mjcf_measured_torque(
         delay = _numeric(model, f"sysid_time_delay_{name}")
         if delay is not None and delay[0] != 0:
             out[:, j] = np.interp(time - float(delay[0]), time, applied[:, j])
-    for a, act in enumerate(actuation_of(model, "the calibrated MJCF").actuators):
-        j = int(model.jnt_dofadr[model.actuator_trnid[a, 0]])
-        sensor = _numeric(model, f"sysid_torque_sensor_{names[model.actuator_trnid[a, 0]]}")
+    gain, offset = torque_sensor(model)
+    return out * gain + offset
+
+
+def torque_sensor(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """(nv,) gain and (nv,) offset of each joint's torque sensor in a calibrated MJCF: reported = gain x applied
+    + offset, from its `sysid_torque_sensor_<joint>` numerics (1 and 0 where it has none)."""
+    gain, offset = np.ones(model.nv), np.zeros(model.nv)
+    for j in range(model.njnt):
+        sensor = _numeric(model, f"sysid_torque_sensor_{mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)}")
         if sensor is not None:
-            out[:, j] = sensor[0] * out[:, j] + sensor[1]
-        elif not act.state_dependent and model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE:
-            out[:, j] -= float(model.actuator_gear[a, 0]) * float(model.actuator_biasprm[a, 0])
-    return out
+            gain[int(model.jnt_dofadr[j])], offset[int(model.jnt_dofadr[j])] = sensor[0], sensor[1]
+    return gain, offset
 
 
 def applied_from_measured(ext: Extension, time: np.ndarray, tau_measured: np.ndarray) -> np.ndarray:

@@ -45,11 +45,20 @@ _BATCH = 1000  # windows simulated in one batch
 
 
 def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
-    """A batched stepper over `mujoco.rollout` for an MJCF, driven by joint torques through its actuators
-    (servos made plain motors, `dynamics.actuators.as_motors`), and its dt."""
+    """A batched stepper over `mujoco.rollout` for an MJCF, driven by the measured joint torques through its
+    actuators (servos made plain motors, `dynamics.actuators.as_motors`), and its dt.
+
+    The torque a calibrated MJCF's sensor reports is turned into the applied one first (`torque_sensor`), then
+    into each actuator's ctrl through its own gear, gain and constant force (a `general` actuator's gainprm and
+    biasprm[0]): ctrl = tau / gear applied gainprm x the torque before, wrong on any actuator of gain != 1."""
+    from identify.diagnose.calibrate import torque_sensor  # the calibrated file's convention lives there
+
+    sensor_gain, sensor_offset = torque_sensor(model)
     model = as_motors(model, "the replayed model")
     act_joint = np.array([int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) for a in range(model.nu)], dtype=int)
     gear = model.actuator_gear[:, 0].copy()
+    gain = model.actuator_gainprm[:, 0].copy()
+    bias = np.where(model.actuator_biastype == mujoco.mjtBias.mjBIAS_AFFINE, model.actuator_biasprm[:, 0], 0.0)
     spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
     data = mujoco.MjData(model)
     size = mujoco.mj_stateSize(model, spec)
@@ -60,8 +69,8 @@ def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
             mujoco.mj_resetData(model, data)
             data.qpos[:], data.qvel[:] = q0[b], dq0[b]
             mujoco.mj_getState(model, data, states[b], spec)
-        ctrl = tau[:, :, act_joint] / gear
-        # MuJoCo's affine actuators (a calibrated torque sensor) map the measured torque; see calibrate.py
+        applied = (tau[:, :, act_joint] - sensor_offset[act_joint]) / sensor_gain[act_joint]
+        ctrl = (applied / gear - bias) / gain
         out, _ = rollout.rollout(model, data, states, ctrl)
         return out[:, :, 1 : 1 + model.nq]
 
