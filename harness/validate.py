@@ -547,14 +547,16 @@ def _close_key(cfg: DictConfig, key: str) -> str | None:
     for i, part in enumerate(parts):
         if not isinstance(node, DictConfig):
             return None
-        if part not in node:
+        if part not in node.keys():  # `in node` is False for a value still missing (`???`)
             if ".".join(parts[:i]) in _FREE_KEYS:
                 return None
             synonym = _SYNONYMS.get((".".join(parts[:i]), part))
-            if synonym is not None and synonym in node.keys():  # `in node` is False for a value still missing
+            if synonym is not None and synonym in node.keys():
                 return ".".join([*parts[:i], synonym, *parts[i + 1 :]])
             match = difflib.get_close_matches(part, [str(k) for k in node.keys()], n=1, cutoff=0.75)
             return ".".join([*parts[:i], match[0], *parts[i + 1 :]]) if match else None
+        if i == len(parts) - 1:
+            return None  # it exists (reading it would raise where its value is still missing)
         node = node[part]
     return None
 

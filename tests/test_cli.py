@@ -206,3 +206,12 @@ def test_the_names_people_reach_for_point_to_the_key_that_is_read(argv: list[str
 
     with pytest.raises(ConfigError, match=message):
         check_command_line(argv, REPO / "conf", config)
+
+
+def test_a_required_key_set_with_the_force_prefix_is_accepted() -> None:
+    """`++data.path=` was refused with "did you mean data.path?": a value still missing (`???`) is not `in` its
+    mapping for OmegaConf, so the key read as absent and as its own nearest neighbour."""
+    from harness.validate import check_command_line
+
+    check_command_line(["system=two_link", "data=csv", "++data.path=log.csv"], REPO / "conf", "diagnose")
+    check_command_line(["system=auto", "++system.mjcf=mjcf/two_link.xml"], REPO / "conf", "config")
