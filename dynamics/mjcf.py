@@ -25,8 +25,11 @@ def write_inertial(spec: mujoco.MjSpec, body_name: str, params: np.ndarray) -> N
         raise ValueError(f"unknown body {body_name!r} in the MJCF")
     if not is_consistent(params):
         raise ValueError(f"body {body_name!r}: the inertial parameters are not physically consistent: {params}")
-    if spec.compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE:
-        _freeze_geom_inertials(spec)  # else the compiler replaces what is written here by the geoms' inertia
+    if (
+        spec.compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE
+        or spec.compiler.settotalmass > 0
+    ):
+        _freeze_geom_inertials(spec)  # else the compiler replaces (or rescales) what is written here
     m, c, inertia = mass_com_inertia(params)
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
@@ -41,8 +44,9 @@ def write_inertial(spec: mujoco.MjSpec, body_name: str, params: np.ndarray) -> N
 
 def _freeze_geom_inertials(spec: mujoco.MjSpec) -> None:
     """Under `<compiler inertiafromgeom="true">` MuJoCo computes every body's inertial from its geoms, an explicit
-    `<inertial>` included: one written would be ignored. Every body's inertial is written as the model compiles
-    it now, and the compiler switched to `auto` (geoms decide only where a body has no inertial), so that the
+    `<inertial>` included: one written would be ignored; under `settotalmass` it rescales every mass, a written one
+    included. Every body's inertial is written as the model compiles it now, and the compiler switched to
+    `inertiafromgeom="auto"` (geoms decide only where a body has no inertial) without a total mass, so that the
     model is the same and an inertial written afterwards is the one compiled."""
     model = spec.compile()
     bodies = list(spec.bodies)  # in the compiled order, the world first
@@ -58,3 +62,4 @@ def _freeze_geom_inertials(spec: mujoco.MjSpec) -> None:
         body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
         body.explicitinertial = True
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+    spec.compiler.settotalmass = -1.0

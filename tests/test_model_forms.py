@@ -269,14 +269,19 @@ def _full_inertia(m: mujoco.MjModel, b: int) -> np.ndarray:
     return rot.reshape(3, 3) @ np.diag(m.body_inertia[b]) @ rot.reshape(3, 3).T
 
 
-def test_an_inertial_written_under_inertiafromgeom_true_is_the_one_compiled(tmp_path: Path) -> None:
+@pytest.mark.filterwarnings("ignore:compiler attribute 'settotalmass' is deprecated")  # MuJoCo 4 still reads it
+@pytest.mark.parametrize("setting", ['inertiafromgeom="true"', 'settotalmass="3"'])
+def test_an_inertial_written_under_inertiafromgeom_true_is_the_one_compiled(setting: str, tmp_path: Path) -> None:
     """Under `inertiafromgeom="true"` MuJoCo takes every inertial from the geoms, a written one included: a payload
-    found on such a model reached neither the calibrated MJCF nor a hidden plant. `write_inertial` now keeps every
-    other body as it compiled and the written one is the one compiled, in memory and through the file."""
-    spec = mujoco.MjSpec.from_file(str(_forced_geom_inertia(tmp_path)))
+    found on such a model reached neither the calibrated MJCF nor a hidden plant. Under `settotalmass` it rescales
+    every mass, the written one too. `write_inertial` now keeps every other body as it compiled and the written
+    one is the one compiled, in memory and through the file."""
+    path = _forced_geom_inertia(tmp_path)
+    path.write_text(path.read_text().replace('inertiafromgeom="true"', setting))
+    spec = mujoco.MjSpec.from_file(str(path))
     before = spec.compile()
     link2, tool = (mujoco.mj_name2id(before, mujoco.mjtObj.mjOBJ_BODY, n) for n in ("link2", "tool"))
-    assert before.body_mass[tool] < 1.0  # the geoms', not the 5 kg written
+    assert before.body_mass[tool] < (1.0 if "inertiafromgeom" in setting else 3.0)  # not the 5 kg written
     added = from_mass_com_inertia(
         float(before.body_mass[link2]) + 0.4, before.body_ipos[link2], _full_inertia(before, link2)
     )
