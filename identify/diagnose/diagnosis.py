@@ -682,7 +682,7 @@ def diagnose(
     z_floor = selection.min_z_records if len(tr) > 1 else selection.min_z  # the most lenient the selection asks
     sliding = _sliding_rows(s_tr, steps, names)
     X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None)
-    lead = _torque_lead(plant, steps, X, s_tr, weights, m)
+    lead = _torque_lead(plant, steps, X, s_tr, weights, m, sliding)
     fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
     sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
         names[j]: float(np.mean(~sliding[fitted_rows[:, j], j]))
@@ -1642,27 +1642,39 @@ def _lead_note(lead: tuple[float, float] | None, dt: float, declared: float) -> 
 
 
 def _torque_lead(
-    plant: Plant, steps: list[Step], X: np.ndarray, s: Signals, weights: np.ndarray, n_nuisance: int
+    plant: Plant,
+    steps: list[Step],
+    X: np.ndarray,
+    s: Signals,
+    weights: np.ndarray,
+    n_nuisance: int,
+    sliding: np.ndarray | None = None,
 ) -> tuple[float, float] | None:
     """(delay, std) [s] of the measured torque against the motion, one for every actuated joint, fitted without
     a bound beside the chosen columns `X`: negative where the torque leads the states (a torque held over each
     sample and logged at its start, read as acting at its row: `Dataset.tau_lead_s`). The selection's
     `time_delay` is bounded at 0, and what stands in for a lead there is armature and a negative change of damping
     (a lead of h scales the torque's rate, M x jerk + ...: -h w^2 M dq at a frequency w). None: no actuated joint.
+    On the rows the final fit uses (`sliding`, as `_final_fit`: not where a joint sticks in its friction).
     """
     pool = candidates(plant, ["time_delay"], np.random.default_rng(0), s)
     if not pool:
         return None
     lead = sum(s.columns(c) for c in pool)  # (N, nv, 1): each actuated joint's -d tau / dt on its own row
     lo, hi = _step_bounds(steps, n_nuisance)
+    used = s.used if sliding is None else (sliding if s.used is None else s.used & sliding)
+    columns, residual = np.concatenate([X, lead], axis=2), s.residual
+    if sliding is not None:
+        fitted = dataclasses.replace(s, used=used)
+        columns, residual = fitted.zero_unused(columns), fitted.zero_unused(residual)
     fit = fit_columns(
-        np.concatenate([X, lead], axis=2),
-        s.residual,
+        columns,
+        residual,
         weights,
         lower=np.append(lo, -np.inf),
         upper=np.append(hi, np.inf),
         record=s.record,
-        used=s.used,
+        used=used,
     )
     return float(fit.coef[-1]), float(np.sqrt(fit.cov[-1, -1]))
 
