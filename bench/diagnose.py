@@ -159,14 +159,12 @@ def judge(
     }
     for name, p in authors.items():
         predictors[name] = lambda q, p=p: author_torque(p, q, states.dq, states.ddq)  # type: ignore[misc]
-    zeroed = {k: list(_angle_zeroed(f, states.q, measured, rows)) for k, f in predictors.items() if angle_zero}
-    preds = {"calibrated": mjcf_measured_torque(model, data.time, states.q, states.dq, states.ddq)}
+    preds = {k: f(states.q) for k, f in predictors.items()}
     for speed in ramps:
         preds[f"calibrated_ramp_{speed:g}"] = mjcf_measured_torque(
             widened(model, speed), data.time, states.q, states.dq, states.ddq
         )
-    for name, p in authors.items():
-        preds[name] = author_torque(p, states.q, states.dq, states.ddq)
+    zeroed = {k: list(_angle_zeroed(f, states.q, measured, rows)) for k, f in predictors.items() if angle_zero}
 
     def rms(pred: dict[str, np.ndarray]) -> dict[str, list[float]]:
         return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in pred.items()}

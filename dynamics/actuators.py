@@ -93,7 +93,9 @@ def _actuator(m: mujoco.MjModel, a: int, where: str) -> Actuator:
         )
     jid = int(m.actuator_trnid[a, 0])
     gear, gain = float(m.actuator_gear[a, 0]), float(m.actuator_gainprm[a, 0])
-    bias = np.asarray(m.actuator_biasprm[a, :3], dtype=float).copy()
+    bias = np.zeros(3)  # MuJoCo applies biasprm only under an affine biastype
+    if int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE):
+        bias = np.asarray(m.actuator_biasprm[a, :3], dtype=float).copy()
     kind = _kind(gain, int(m.actuator_biastype[a]), bias)
     limit = np.inf
     if m.actuator_forcelimited[a]:
@@ -144,12 +146,13 @@ class Actuation:
         return out
 
     def ctrl_for_torque(self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """(nu,) ctrl that makes each actuator apply the joint torque tau (nv,) at the state q, dq (nv,)."""
-        out = np.empty(len(self.actuators))
+        """(..., nu) ctrl that makes each actuator apply the joint torque tau (..., nv) at the state q, dq (..., nv)
+        (any leading dimensions: one sample, or a batch of windows)."""
+        out = np.empty((*np.shape(tau)[:-1], len(self.actuators)))
         for i, a in enumerate(self.actuators):
             j = a.joint
-            bias = a.bias[0] + a.bias[1] * a.gear * q[j] + a.bias[2] * a.gear * dq[j]
-            out[i] = (tau[j] / a.gear - bias) / a.gain
+            bias = a.bias[0] + a.bias[1] * a.gear * q[..., j] + a.bias[2] * a.gear * dq[..., j]
+            out[..., i] = (tau[..., j] / a.gear - bias) / a.gain
         return out
 
     def ctrl_for_reference(self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray, setpoints: np.ndarray) -> np.ndarray:

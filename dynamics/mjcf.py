@@ -36,7 +36,12 @@ def write_inertial(spec: mujoco.MjSpec, body_name: str, params: np.ndarray) -> N
         axes[:, 0] = -axes[:, 0]
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, axes.reshape(-1))
-    body.mass, body.ipos, body.iquat, body.inertia = m, c, quat, moments
+    _set_inertial(body, m, c, quat, moments)
+
+
+def _set_inertial(body: mujoco.MjsBody, mass: float, ipos: np.ndarray, iquat: np.ndarray, moments: np.ndarray) -> None:
+    """`body`'s explicit inertial in MuJoCo's own form (`diaginertia` + `quat`), any other form cleared."""
+    body.mass, body.ipos, body.iquat, body.inertia = mass, ipos, iquat, moments
     body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])  # MjSpec's "not given"
     body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     body.explicitinertial = True
@@ -55,11 +60,12 @@ def _freeze_geom_inertials(spec: mujoco.MjSpec) -> None:
     for b in range(1, model.nbody):
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b)
         body = spec.body(name) if name else bodies[b]
-        body.mass, body.ipos = float(model.body_mass[b]), model.body_ipos[b].copy()
-        body.iquat = model.body_iquat[b].copy()
-        body.inertia = model.body_inertia[b].copy()
-        body.fullinertia = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])
-        body.ialt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
-        body.explicitinertial = True
+        _set_inertial(
+            body,
+            float(model.body_mass[b]),
+            model.body_ipos[b].copy(),
+            model.body_iquat[b].copy(),
+            model.body_inertia[b].copy(),
+        )
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
     spec.compiler.settotalmass = -1.0

@@ -204,9 +204,10 @@ def record_joint_offsets(cfg: DictConfig) -> bool:
     return flag_set_by(cfg, "record_joint_offsets") is not None
 
 
-def _mjcf_names(plant: Plant) -> tuple[str, str]:
-    """The calibrated MJCFs' file names: fitted on the training records, and on every record (`final_fit`)."""
-    return f"{plant.name}_calibrated.xml", f"{plant.name}_calibrated_all.xml"
+def _mjcf_names(system: str) -> tuple[str, str]:
+    """The calibrated MJCFs' file names of a system: fitted on the training records, and on every record
+    (`final_fit`)."""
+    return f"{system}_calibrated.xml", f"{system}_calibrated_all.xml"
 
 
 def _previous_mjcf_names(folder: Path, plant: Plant) -> tuple[str, ...]:
@@ -218,7 +219,7 @@ def _previous_mjcf_names(folder: Path, plant: Plant) -> tuple[str, ...]:
         return ()
     if not isinstance(name, str) or name == plant.name or not name or Path(name).name != name:
         return ()
-    return (f"{name}_calibrated.xml", f"{name}_calibrated_all.xml")
+    return _mjcf_names(name)
 
 
 def run(cfg: DictConfig) -> dict[str, Any]:
@@ -231,7 +232,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     plant = as_simulated(load_system(cfg), _hard_friction(cfg))  # the nominal MJCF as the logs' simulator ran it
     cfg = with_model_defaults(cfg, plant)
     previous = _previous_mjcf_names(_output_dir(cfg), plant)
-    outputs = ("diagnosis.rrd", *previous, *_mjcf_names(plant), "diagnosis.json")
+    outputs = ("diagnosis.rrd", *previous, *_mjcf_names(plant.name), "diagnosis.json")
     with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
         return _run(cfg, plant, folder)
 
@@ -306,7 +307,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         return fit(train, split.validation, rng=np.random.default_rng(int(cfg.seed)), **kwargs)
 
     result = run_diagnosis(split.train, references=references)
-    mjcf_name, final_name = _mjcf_names(plant)
+    mjcf_name, final_name = _mjcf_names(plant.name)
     payload = result.to_dict(mjcf_name=mjcf_name)
     final: Diagnosis | None = None
     if bool(opts.get("final_fit", True)):
@@ -467,7 +468,9 @@ def _write_outputs(
         )
     steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
     if final is not None:
-        steps.append((out / _mjcf_names(plant)[1], lambda p: atomic_write(p, lambda f: f.write(final.calibrated_xml))))
+        steps.append(
+            (out / _mjcf_names(plant.name)[1], lambda p: atomic_write(p, lambda f: f.write(final.calibrated_xml)))
+        )
     steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
     try:
         for path, write in steps:

@@ -1362,11 +1362,10 @@ def _record_angles_alone(plant: Plant, records: list[_Record]) -> np.ndarray:
     return fit.coef.reshape(len(records), plant.nv)  # type: ignore[no-any-return]
 
 
-def _record_joint_offset_columns(s: Signals, dtau_dq: np.ndarray | None = None) -> np.ndarray:
+def _record_joint_offset_columns(s: Signals) -> np.ndarray:
     """(N, nv, records x nv) an angle offset per record and joint (reported minus true angle), record-major: the
-    joint offset candidate's column -d tau / d q_j on that record's rows, in the band. `dtau_dq`: (N, nv, nv) the
-    torque's Jacobian where it was re-evaluated (at the offsets found so far), else the nominal one's."""
-    jac = s.dtau_dq if dtau_dq is None else dtau_dq
+    joint offset candidate's column -d tau / d q_j on that record's rows, in the band."""
+    jac = s.dtau_dq
     records, nv = np.unique(s.record), jac.shape[2]
     out = np.zeros((s.n_samples, jac.shape[1], len(records) * nv))
     for i, r in enumerate(records):
@@ -1556,14 +1555,8 @@ def _final_fit(
     """
     lo, hi = _step_bounds(steps, n_nuisance)
     residual = s.residual  # low-passed record by record on every access: once
-    used = s.used if sliding is None else (sliding if s.used is None else s.used & sliding)
-    fitted = s if sliding is None else dataclasses.replace(s, used=used)
-
-    def solve(X: np.ndarray, r: np.ndarray, weights: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> LinearFit:
-        """The fit on the rows it uses (the others zero on both sides, as `Signals.used` asks)."""
-        if sliding is not None:
-            X, r = fitted.zero_unused(X), fitted.zero_unused(r)
-        return fit_columns(X, r, weights, lower=lower, upper=upper, record=s.record, used=used)
+    fitted = _on_sliding_rows(s, sliding)
+    solve = partial(_fit_on, s, sliding)
 
     fit = solve(X, residual, weights, lo, hi)
     for _ in range(_FGLS_ITERATIONS):
@@ -1662,21 +1655,41 @@ def _torque_lead(
         return None
     lead = sum(s.columns(c) for c in pool)  # (N, nv, 1): each actuated joint's -d tau / dt on its own row
     lo, hi = _step_bounds(steps, n_nuisance)
-    used = s.used if sliding is None else (sliding if s.used is None else s.used & sliding)
-    columns, residual = np.concatenate([X, lead], axis=2), s.residual
-    if sliding is not None:
-        fitted = dataclasses.replace(s, used=used)
-        columns, residual = fitted.zero_unused(columns), fitted.zero_unused(residual)
-    fit = fit_columns(
-        columns,
-        residual,
+    fit = _fit_on(
+        s,
+        sliding,
+        np.concatenate([X, lead], axis=2),
+        s.residual,
         weights,
-        lower=np.append(lo, -np.inf),
-        upper=np.append(hi, np.inf),
-        record=s.record,
-        used=used,
+        np.append(lo, -np.inf),
+        np.append(hi, np.inf),
     )
     return float(fit.coef[-1]), float(np.sqrt(fit.cov[-1, -1]))
+
+
+def _on_sliding_rows(s: Signals, sliding: np.ndarray | None) -> Signals:
+    """`s` with only the torques the final fit uses: those `Signals.used` keeps and, of them, the sliding ones
+    (`_sliding_rows`; None: every used one)."""
+    if sliding is None:
+        return s
+    return dataclasses.replace(s, used=sliding if s.used is None else s.used & sliding)
+
+
+def _fit_on(
+    s: Signals,
+    sliding: np.ndarray | None,
+    X: np.ndarray,
+    r: np.ndarray,
+    weights: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+) -> LinearFit:
+    """The fit of `r` (N, nv) on the columns `X` of `s` on the rows the final fit uses (`_on_sliding_rows`; the
+    others zero on both sides, as `Signals.used` asks: `s`'s own band already zeroes those it leaves out)."""
+    if sliding is not None:
+        s = _on_sliding_rows(s, sliding)
+        X, r = s.zero_unused(X), s.zero_unused(r)
+    return fit_columns(X, r, weights, lower=lower, upper=upper, record=s.record, used=s.used)
 
 
 def _step_bounds(steps: list[Step], n_nuisance: int) -> tuple[np.ndarray, np.ndarray]:

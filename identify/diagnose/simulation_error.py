@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from dynamics.actuators import as_motors
+from dynamics.actuators import actuation_of, as_motors
 
 __all__ = ["SimulationError", "mujoco_stepper", "ode_stepper", "simulation_error"]
 
@@ -49,16 +49,13 @@ def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
     actuators (servos made plain motors, `dynamics.actuators.as_motors`), and its dt.
 
     The torque a calibrated MJCF's sensor reports is turned into the applied one first (`torque_sensor`), then
-    into each actuator's ctrl through its own gear, gain and constant force (a `general` actuator's gainprm and
-    biasprm[0]): ctrl = tau / gear applied gainprm x the torque before, wrong on any actuator of gain != 1."""
+    into each actuator's ctrl through its own gear, gain and constant force (`Actuation.ctrl_for_torque`):
+    ctrl = tau / gear applied gainprm x the torque before, wrong on any actuator of gain != 1."""
     from identify.diagnose.calibrate import torque_sensor  # the calibrated file's convention lives there
 
     sensor_gain, sensor_offset = torque_sensor(model)
     model = as_motors(model, "the replayed model")
-    act_joint = np.array([int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) for a in range(model.nu)], dtype=int)
-    gear = model.actuator_gear[:, 0].copy()
-    gain = model.actuator_gainprm[:, 0].copy()
-    bias = np.where(model.actuator_biastype == mujoco.mjtBias.mjBIAS_AFFINE, model.actuator_biasprm[:, 0], 0.0)
+    actuation = actuation_of(model, "the replayed model")  # no actuator's force depends on the state any more
     spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
     data = mujoco.MjData(model)
     size = mujoco.mj_stateSize(model, spec)
@@ -69,8 +66,9 @@ def mujoco_stepper(model: mujoco.MjModel) -> tuple[Stepper, float]:
             mujoco.mj_resetData(model, data)
             data.qpos[:], data.qvel[:] = q0[b], dq0[b]
             mujoco.mj_getState(model, data, states[b], spec)
-        applied = (tau[:, :, act_joint] - sensor_offset[act_joint]) / sensor_gain[act_joint]
-        ctrl = (applied / gear - bias) / gain
+        applied = (tau - sensor_offset) / sensor_gain
+        still = np.zeros_like(applied)  # the state: no term of a state-free actuator reads it
+        ctrl = actuation.ctrl_for_torque(applied, still, still)
         out, _ = rollout.rollout(model, data, states, ctrl)
         return out[:, :, 1 : 1 + model.nq]
 
