@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-__all__ = ["DataError", "InfeasibleExcitationError", "ModelError", "RankDeficientError", "SysIdError"]
+__all__ = [
+    "DataError",
+    "InfeasibleExcitationError",
+    "ModelError",
+    "RankDeficientError",
+    "SysIdError",
+    "one_line",
+]
 
 
 class SysIdError(Exception):
@@ -32,3 +39,8 @@ class InfeasibleExcitationError(SysIdError, ValueError):
 
 class RankDeficientError(SysIdError, ValueError):
     """The regressor does not excite the parameters that were asked for."""
+
+
+def one_line(err: Exception) -> str:
+    """A library's error on one line (MuJoCo's compile errors take three: the error, the element, a note)."""
+    return "; ".join(line.strip() for line in str(err).splitlines() if line.strip())

@@ -24,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from dynamics.actuators import Actuation, actuation_of
-from dynamics.errors import ModelError
+from dynamics.errors import ModelError, one_line
 from dynamics.friction import applied_friction_parameters, friction_enabled, friction_parameters
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
@@ -183,7 +183,7 @@ def load_plant(system: str | Path) -> Plant:
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
-        raise ModelError(f"{source}: MuJoCo cannot load it: {err}") from err
+        raise ModelError(f"{source}: MuJoCo cannot load it: {one_line(err)}") from err
     try:
         plant = plant_from_model(path, mj_model)
     except ModelError as err:  # a URDF's errors name the URDF, not the MJCF converted from it in a cache folder

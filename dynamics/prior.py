@@ -26,7 +26,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from dynamics.errors import ModelError
+from dynamics.errors import ModelError, one_line
 from dynamics.plant import Plant, load_plant, plant_from_model
 from dynamics.regressor import ParameterModel
 
@@ -161,7 +161,7 @@ def perturbed_plant(plant: Plant, spec: PriorSpec, rng: np.random.Generator, *, 
     try:
         compiled = spec_.compile()
     except ValueError as err:
-        raise ModelError(f"{plant.path}: the perturbed prior does not compile: {err}") from err
+        raise ModelError(f"{plant.path}: the perturbed prior does not compile: {one_line(err)}") from err
     target = path or plant.path.with_name(f"{plant.path.stem}_prior.xml")
     return plant_from_model(target, compiled)
 

@@ -1,7 +1,8 @@
 """A URDF as an MJCF: MuJoCo's own URDF compiler reads it, and a motor is added on every joint.
 
 Mesh geometry is dropped first (its `package://` paths name files MuJoCo cannot resolve, and identification
-needs only the URDF's `<inertial>` elements); primitive geometry is kept. MuJoCo reads each joint's
+needs only the URDF's `<inertial>` elements); primitive geometry is kept, weightless on a link without an
+`<inertial>` (a massless link, as the URDF means it). MuJoCo reads each joint's
 `<limit effort>` as its `actuatorfrcrange`; the motor added on it gets that range as its ctrl range, so the
 torque limit is the URDF's effort limit. Joint velocity limits, which MuJoCo ignores, are read here.
 """
@@ -16,7 +17,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from dynamics.errors import ModelError
+from dynamics.errors import ModelError, one_line
 
 __all__ = ["URDF_SUFFIXES", "mjcf_from_urdf", "urdf_as_mjcf_file", "urdf_velocity_limits"]
 
@@ -45,6 +46,20 @@ def _stripped(path: Path) -> ET.Element:
     return root
 
 
+def _massless_links(spec: mujoco.MjSpec) -> list[str]:
+    """The links without an `<inertial>`: massless, as the URDF means it (and Pinocchio reads it). MuJoCo would
+    give them the mass of their primitive geometry at its default density (a 10 cm collision box: 1 kg); their
+    geoms are made weightless instead. Returns their names."""
+    out = []
+    for body in spec.bodies:
+        if body.name == "world" or body.explicitinertial:
+            continue
+        for geom in body.geoms:
+            geom.density = 0.0
+        out.append(body.name)
+    return out
+
+
 def mjcf_from_urdf(path: Path) -> str:
     """MJCF text of a URDF, compiled by MuJoCo, with a motor on every joint (ctrl range = effort limit).
 
@@ -54,9 +69,20 @@ def mjcf_from_urdf(path: Path) -> str:
     root = _stripped(path)
     try:
         spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+    except ValueError as err:
+        raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {one_line(err)}") from err
+    massless = _massless_links(spec)
+    try:
         m = spec.compile()
     except ValueError as err:
-        raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {err}") from err
+        moving = [name for name in massless if name in str(err)]
+        if moving and "mass and inertia of moving bodies" in str(err):
+            raise ModelError(
+                f"{path}: link {moving[0]!r} has no <inertial> (no mass, as a URDF means it) and a joint moves it, "
+                "which MuJoCo cannot simulate: give it an <inertial> (a small mass and inertia where it is a "
+                "virtual link between two joints)"
+            ) from err
+        raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {one_line(err)}") from err
     for j in range(m.njnt):
         if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             continue

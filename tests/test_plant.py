@@ -125,6 +125,15 @@ def test_a_urdfs_errors_name_the_urdf(tmp_path: Path) -> None:
     assert "sysid_urdf_" not in str(err.value)
 
 
+def test_mujocos_compile_error_is_one_line_naming_the_file(tmp_path: Path) -> None:
+    """MuJoCo's compile errors take three lines (the error, the element, a note); a refusal is one line."""
+    path = tmp_path / "zero.xml"
+    path.write_text('<mujoco><worldbody><body><joint/><geom size="0" type="box"/></body></worldbody></mujoco>')
+    with pytest.raises(ModelError, match=r"zero\.xml: MuJoCo cannot load it: Error: size 0 must be positive") as err:
+        load_plant(path)
+    assert "\n" not in str(err.value) and "; Element name" in str(err.value)
+
+
 def test_hinge_tells_hinges_from_slides(tmp_path: Path) -> None:
     from dynamics.plant import plant_from_xml
 

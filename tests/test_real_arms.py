@@ -292,6 +292,51 @@ def test_a_urdf_mimic_joint_is_named_in_the_urdfs_terms(tmp_path: Path) -> None:
         load_plant(urdf)
 
 
+_INERTIAL = (
+    '<inertial><origin xyz="{0}"/><mass value="{1}"/>'
+    '<inertia ixx="0.002" iyy="0.002" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>'
+)
+_BOX = '<collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision>'
+
+
+def _urdf(tmp_path: Path, name: str, middle: str, middle_joint: str) -> Path:
+    """base -> l1 (revolute j1) -> `middle` link (joined by `middle_joint`) -> l2 (revolute j2)."""
+    urdf = tmp_path / f"{name}.urdf"
+    urdf.write_text(
+        f'<robot name="{name}"><link name="base"/>'
+        f'<link name="l1">{_INERTIAL.format("0.1 0 0", 1)}</link>{middle}'
+        f'<link name="l2">{_INERTIAL.format("0 0 -0.1", 0.5)}</link>'
+        '<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>'
+        '<limit lower="-2" upper="2" effort="10" velocity="1"/></joint>'
+        f'<joint name="jm" type="{middle_joint}"><parent link="l1"/><child link="mid"/><origin xyz="0.2 0 0"/>'
+        '<axis xyz="0 1 0"/><limit lower="-1.5" upper="1.5" effort="10" velocity="1"/></joint>'
+        '<joint name="j2" type="revolute"><parent link="mid"/><child link="l2"/><axis xyz="1 0 0"/>'
+        '<limit lower="-1.5" upper="1.5" effort="10" velocity="1"/></joint></robot>'
+    )
+    return urdf
+
+
+def test_a_urdf_link_without_an_inertial_is_massless_as_pinocchio_reads_it(tmp_path: Path) -> None:
+    """A link with no <inertial> weighs nothing in a URDF; MuJoCo gave it its collision box's mass at its default
+    density (1 kg for a 10 cm box), 0.64 N m away from Pinocchio's reading of the same file."""
+    urdf = _urdf(tmp_path, "sensor", f'<link name="mid">{_BOX}</link>', "fixed")
+    plant = load_plant(urdf)
+    assert plant.joint_names == ("j1", "j2")
+    np.testing.assert_allclose(plant.mj_model.body_subtreemass[0], 1.5)
+    pm = pin.buildModelFromUrdf(str(urdf))
+    q, dq, ddq = random_states(plant, np.random.default_rng(0), 30)
+    data = pm.createData()
+    theirs = np.array([pin.rnea(pm, data, q[k], dq[k], ddq[k]) for k in range(len(q))])
+    np.testing.assert_allclose(joint_torque(plant, q, dq, ddq)[0], theirs, atol=2e-5 * (1 + np.abs(theirs).max()))
+
+
+def test_a_massless_urdf_link_that_a_joint_moves_is_named_with_the_fix(tmp_path: Path) -> None:
+    """MuJoCo refuses a moving body without mass in three sentences of its own; the refusal names the link."""
+    urdf = _urdf(tmp_path, "cross", '<link name="mid"/>', "revolute")
+    with pytest.raises(ModelError, match=r"cross\.urdf: link 'mid' has no <inertial> .* give it an <inertial>"):
+        load_plant(urdf)
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not (ROBOTS / "so_arm100.xml").is_file(), reason="../shared/robots/ is not beside the project")
 def test_clean_data_of_an_arm_with_dry_friction_have_no_discrepancy(tmp_path: Path) -> None:
