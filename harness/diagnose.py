@@ -51,6 +51,7 @@ from identify.diagnose import (
     load_author_model,
 )
 from identify.diagnose.anomalies import still_joints
+from identify.diagnose.residuals import noise_floor
 from identify.diagnose.state_noise import check_full_rate_state_noise
 from identify.excitation_check import check_excitation
 
@@ -397,7 +398,10 @@ def _reduce(
             f"{k}th row ({fs / k:.4g} Hz; states and torque anti-aliased at {fs / k / 2.5:.3g} Hz, the motion "
             f"spans {keep_hz / 2:.3g} Hz)"
         )
-        out.append(reduce_record(data, method, k, **options))
+        reduced = reduce_record(data, method, k, **options)
+        if k > 1:  # the anti-aliased torque hides its noise from the third differences: read it at the full rate
+            reduced.meta["reduced"]["noise_floor"] = noise_floor(data.tau).tolist()
+        out.append(reduced)
         del data
     return out, "given", {}
 

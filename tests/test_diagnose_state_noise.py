@@ -13,7 +13,7 @@ import pytest
 from dynamics.errors import DataError
 from envs.dataset import Dataset
 from identify.diagnose.diagnosis import _records, diagnose
-from identify.diagnose.state_noise import STATE_NOISE_SHARE, angle_noise, state_noise_share
+from identify.diagnose.state_noise import STATE_NOISE_SHARE, angle_noise, state_noise_share, state_noise_torque
 from identify.diagnose.testbed import SYSTEMS, rollout
 
 OPTIONS = {"cutoff_hz": 10.0}
@@ -29,7 +29,8 @@ def _share(plant, data: Dataset, band_hz: float | None = None) -> tuple[np.ndarr
     rec = _records(plant, [data], "butterworth", OPTIONS, band_hz)[0]
     s = rec.signals
     rng = np.random.default_rng(0)
-    return state_noise_share(plant, data, rec.states, s.tau_nominal, s.smooth, "butterworth", OPTIONS, rng), s
+    noise = state_noise_torque(plant, data, rec.states, s.tau_nominal, "butterworth", OPTIONS, rng)
+    return state_noise_share(s.tau_nominal, s.smooth, noise, plant.nv), s
 
 
 def test_the_angle_noise_is_read_from_the_third_differences_under_the_motion() -> None:

@@ -118,7 +118,15 @@ def test_hidden_effect_is_named_and_explained(system: str, truth: Injected) -> N
         f.std,
     )
     assert err < 0.25 * abs(expected - (1.0 if truth.effect == "torque_gain" else 0.0))
-    assert dg.verdict == "explained", dg.verdict_reason
+    if truth.effect == "coulomb_friction" and dg.verdict == "unexplained_structure":
+        # MuJoCo's frictionloss is a soft constraint whose force also follows the acceleration the joint would have
+        # without it; the candidates' shapes follow the velocity alone, and what they leave where the joint turns
+        # round can exceed the noise (the wheel at seed 3: 3.6 times its share in the band). The verdict says so
+        left = [j for j, w in dg.whiteness["calibrated"].items() if w["structured"]]
+        assert left == [truth.joint], dg.verdict_reason
+        assert dg.remaining[truth.joint]["turning_round"]["share_of_residual"] > 0.5, dg.remaining
+    else:
+        assert dg.verdict == "explained", dg.verdict_reason
     assert dg.evidence_gain_ok if hasattr(dg, "evidence_gain_ok") else True
     if truth.effect == "cogging":
         assert f.parameters and "n = 6 " in f.note
@@ -142,6 +150,34 @@ def test_effect_outside_the_vocabulary_is_unexplained_structure_with_its_signatu
     assert sig["spectral_peaks"] and set(sig["correlation"]) == {"q", "dq", "sign_dq", "ddq"}
     assert {"cycles_per_revolution", "period_rad", "amplitude", "share"} <= set(sig["position_periodic"])
     assert dg.to_dict()["remaining"] == dg.remaining
+
+
+SENSOR_OUTSIDE = [
+    ("two_link", Injected("torque_dead_zone", "shoulder", 0.1)),
+    ("two_link", Injected("torque_drift", "elbow", 0.15)),
+    ("pendulum", Injected("torque_dead_zone", "swing", 0.05)),
+]
+
+
+@pytest.mark.parametrize(("system", "truth"), SENSOR_OUTSIDE, ids=lambda x: getattr(x, "effect", x))
+def test_a_torque_sensor_outside_the_vocabulary_leaves_structure(system: str, truth: Injected) -> None:
+    """A dead zone or a drifting zero of the torque sensor is no effect of the library: whatever is named for part
+    of it (a torque gain, an offset), the verdict says structure remains."""
+    _, dg = diagnose_case(system, [truth], seed=0)
+    assert dg.verdict == "unexplained_structure", (dg.verdict_reason, [f.name for f in dg.findings])
+    assert dg.whiteness["calibrated"][truth.joint]["structured"]
+
+
+def test_a_validation_record_with_a_torque_zero_of_its_own_is_a_discrepancy() -> None:
+    """Clean training data, and a validation record whose elbow torque reads 0.13 N m high: its residual is white
+    about its mean, and was called `no_discrepancy`; the mean is structure too. With a torque zero per record
+    fitted as a nuisance (`record_offsets`) a record's own zero is expected, and is no discrepancy."""
+    offset = [Injected("torque_offset", "elbow", 0.13)]
+    _, dg = diagnose_records("two_link", [[]], offset, seed=0)
+    assert dg.verdict == "unexplained_structure", dg.verdict_reason
+    assert dg.whiteness["nominal"]["elbow"]["structured_rms"] == pytest.approx(0.13, rel=0.1)
+    _, dg = diagnose_records("two_link", [[], []], offset, seed=0, record_offsets=True)
+    assert dg.verdict == "no_discrepancy", dg.verdict_reason
 
 
 def test_first_joint_armature_is_reported_confounded_with_the_first_link_inertia() -> None:

@@ -55,7 +55,7 @@ from identify.diagnose.residuals import (
 )
 from identify.diagnose.select import SelectionOptions, Step, _flat, _span_free, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
-from identify.diagnose.state_noise import check_state_noise, state_noise_share
+from identify.diagnose.state_noise import check_state_noise, state_noise_share, state_noise_torque
 from identify.diagnose.statistics import LinearFit
 from identify.estimators.least_squares import safe_sigma
 
@@ -627,17 +627,21 @@ def diagnose(
         shifted = [dataclasses.replace(d, q=d.q - o) for d, o in zip(train, rest, strict=True)]
         tr = _records(plant, shifted, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
-    for rec in [*tr, *va]:
+    state_noise_va: list[np.ndarray | None] = []  # what the angles' noise adds to each validation record's torque
+    for k, rec in enumerate([*tr, *va]):
         # a joint in its stops on much of the record carries the stop's force there: not compared, as a still one
         stopped = np.mean(_at_stops(plant, rec.data.q), axis=0) > STOPPED_SHARE
         moving = moving_joints(rec.data, plant.hinge) & ~stopped
         if check_torque_signs:
             check_torque_columns(plant, rec.data, rec.signals, moving)
         s = rec.signals
-        share = state_noise_share(
-            plant, rec.data, rec.states, s.tau_nominal, s.smooth, derivatives, options, np.random.default_rng(0)
+        noise = state_noise_torque(
+            plant, rec.data, rec.states, s.tau_nominal, derivatives, options, np.random.default_rng(0)
         )
+        share = state_noise_share(s.tau_nominal, s.smooth, noise, plant.nv)
         check_state_noise(plant, rec.data, share, derivatives, options, moving=moving, band_hz=band_hz)
+        if k >= len(tr):
+            state_noise_va.append(None if noise is None else s.smooth(noise))
     names = plant.joint_names
     s_tr, unfitted, held_tr, stopped_tr = _training_signals(plant, tr)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
@@ -798,9 +802,12 @@ def diagnose(
     band = _structure_band(va[0].data, derivatives, options)
     # the torques left out (`Signals.used`) are zeros in the residual: the noise expected is the share kept
     kept = sigma * np.sqrt(np.mean(s_va.used, axis=0) if s_va.used is not None else 1.0)
-    white_nom = whiteness(s_va.residual, kept, fs, band_hz=band)
+    drawn = [n for n in state_noise_va if n is not None]
+    noise_va = np.concatenate(drawn) if len(drawn) == len(state_noise_va) else None
+    own_zeros = bool(record_offsets and len(tr) > 1)  # a validation record's torque zero is its own then
+    white_nom = whiteness(s_va.residual, kept, fs, band_hz=band, state_noise=noise_va, count_mean=not own_zeros)
     left = s_va.in_band(s_va.tau - preds["calibrated"])
-    white_cal = whiteness(left, kept, fs, band_hz=band)
+    white_cal = whiteness(left, kept, fs, band_hz=band, state_noise=noise_va, count_mean=not own_zeros)
     verdict, reason = _with_drift(*_verdict(findings, s_va, preds, weights, white_nom, white_cal), drift)
     if demoted:
         reason = (
@@ -1388,8 +1395,20 @@ def _noise_floor(records: list[_Record], unfitted: np.ndarray) -> np.ndarray:
     """(nv,) the median over the training records of each joint's torque noise floor, leaving out the records
     where that joint's torque is not fitted (`unfitted`, (records, nv): a motor that reports zero there has no
     noise; a joint is never unfitted in every record, `_still_joints`)."""
-    floors = np.array([noise_floor(r.data.tau) for r in records], dtype=float)
+    floors = np.array([record_noise_floor(r.data) for r in records], dtype=float)
     return np.nanmedian(np.where(unfitted, np.nan, floors), axis=0)
+
+
+def record_noise_floor(data: Dataset) -> np.ndarray:
+    """(nv,) a record's torque noise floor [N m] (`residuals.noise_floor`). A record thinned to every k-th row
+    (`identify.derivatives.reduce_record`) had its torque anti-aliased first, which hides the noise from the
+    third differences (a pendulum's 0.0099 N m read as 0.0021, and its clean residual as structure): there the
+    floor read at the full rate (`meta["reduced"]["noise_floor"]`, where the caller kept it) is used, as the
+    white noise of the same density at the kept rate, floor / sqrt(k)."""
+    reduced = data.meta.get("reduced") or {}
+    if reduced.get("noise_floor") is not None:
+        return np.asarray(reduced["noise_floor"], dtype=float) / np.sqrt(float(reduced["factor"]))
+    return noise_floor(data.tau)
 
 
 def _never_moving(records: list[_Record], hinge: np.ndarray) -> np.ndarray:

@@ -29,7 +29,14 @@ from identify.derivatives import States, derive_states, state_cutoff_hz
 from identify.diagnose.anomalies import moving_joints
 from identify.diagnose.candidates import band_lowpass
 
-__all__ = ["STATE_NOISE_SHARE", "angle_noise", "check_full_rate_state_noise", "check_state_noise", "state_noise_share"]
+__all__ = [
+    "STATE_NOISE_SHARE",
+    "angle_noise",
+    "check_full_rate_state_noise",
+    "check_state_noise",
+    "state_noise_share",
+    "state_noise_torque",
+]
 
 STATE_NOISE_SHARE = 0.05  # most of the model torque's variance (in the band) that may be the angles' noise
 _THIRD_DIFFERENCE_GAIN = np.sqrt(20.0)  # std of the third difference of white noise of std 1
@@ -49,44 +56,47 @@ def angle_noise(q: np.ndarray) -> np.ndarray:
     return 1.4826 * np.median(np.abs(d3), axis=0) / _THIRD_DIFFERENCE_GAIN  # type: ignore[no-any-return]
 
 
-def state_noise_share(
+def state_noise_share(tau_nominal: np.ndarray, smooth: Any, noise: np.ndarray | None, nv: int) -> np.ndarray:
+    """(nv,) the share of the variance of the nominal torque along the record that the angles' noise makes.
+
+    Args:
+        tau_nominal: (M, nv) the nominal torque on the rows from the first to the last valid one.
+        smooth: the analysis band's low-pass of (M, nv) arrays (`Signals.smooth`).
+        noise: (M, nv) what the angles' noise adds to it (`state_noise_torque`), or None (a share of 0).
+        nv: joints.
+
+    Returns:
+        0 for every joint where there is no such noise (`given`, `simulator` states, noiseless angles) or the
+        model torque does not vary.
+    """
+    if noise is None:
+        return np.zeros(nv)
+    var = np.var(smooth(tau_nominal), axis=0)
+    return np.where(var > 0, np.var(smooth(noise), axis=0) / np.maximum(var, 1e-300), 0.0)  # type: ignore[no-any-return]
+
+
+def state_noise_torque(
     plant: Plant,
     data: Dataset,
     states: States,
     tau_nominal: np.ndarray,
-    smooth: Any,
     method: str,
     options: dict[str, Any],
     rng: np.random.Generator,
-) -> np.ndarray:
-    """(nv,) the share of the variance of the nominal torque along the record that the angles' noise makes.
-
-    Args:
-        plant: the nominal model.
-        data: the record as logged.
-        states: its states (`derive_states(data, method, **options)`).
-        tau_nominal: (M, nv) the nominal torque on the rows from the first to the last valid one.
-        smooth: the analysis band's low-pass of (M, nv) arrays (`Signals.smooth`).
-        method, options: the derivative filter.
-        rng: the noise's randomness.
-
-    Returns:
-        0 for every joint where the states do not come from the angles (`given`, `simulator`) or the model
-        torque does not vary.
-    """
+) -> np.ndarray | None:
+    """(M, nv) a draw of what the angles' noise adds to the nominal torque along the record (on the rows from the
+    first to the last valid one, as `tau_nominal`): white noise of the logged angles' own size (`angle_noise`)
+    through the derivative filter and the model. None where the states do not come from the angles or the
+    angles carry no noise."""
     sigma = angle_noise(data.q)
     if method in _UNFILTERED or not np.any(sigma > 0):
-        return np.zeros(plant.nv)
+        return None
     noise = dataclasses.replace(data, q=rng.normal(0.0, 1.0, data.q.shape) * sigma, dq=None)
     moved = derive_states(noise, method, **options)
     valid = np.flatnonzero(states.valid)
     rows = np.arange(valid[0], valid[-1] + 1)
     q, dq, ddq = states.q[rows], states.dq[rows], states.ddq[rows]
-    noisy = joint_torque(plant, q + moved.q[rows], dq + moved.dq[rows], ddq + moved.ddq[rows])[0]
-    err = smooth(noisy - tau_nominal)
-    ref = smooth(tau_nominal)
-    var = np.var(ref, axis=0)
-    return np.where(var > 0, np.var(err, axis=0) / np.maximum(var, 1e-300), 0.0)  # type: ignore[no-any-return]
+    return joint_torque(plant, q + moved.q[rows], dq + moved.dq[rows], ddq + moved.ddq[rows])[0] - tau_nominal
 
 
 def check_state_noise(
@@ -172,6 +182,7 @@ def check_full_rate_state_noise(
         return band_lowpass(x, fs, band_hz)
 
     rng = rng or np.random.default_rng(0)
-    share = state_noise_share(plant, head, states, tau_nominal, smooth, method, options, rng)
+    noise = state_noise_torque(plant, head, states, tau_nominal, method, options, rng)
+    share = state_noise_share(tau_nominal, smooth, noise, plant.nv)
     moving = moving_joints(data, plant.hinge)
     check_state_noise(plant, head, share, method, options, moving=moving, band_hz=band_hz)

@@ -14,8 +14,9 @@ Effects (`Injected.effect`):
   (size sin(extra q)), `stribeck_friction` (size sign(dq) exp(-(dq / extra)^2)), `torque_gain` (logged =
   (1 + size) applied), `torque_offset`, `time_delay` (logged torque late by size s), `joint_offset`
   (logged angle = true + size);
-- outside it: `quadratic_drag` (size dq |dq|) and `torque_disturbance` (size sin(2 pi extra t), a torque
-  that follows time, not the motion).
+- outside it: `quadratic_drag` (size dq |dq|), `torque_disturbance` (size sin(2 pi extra t), a torque
+  that follows time, not the motion), and two of the torque sensor: `torque_dead_zone` (logged = sign(tau)
+  max(|tau| - size, 0)) and `torque_drift` (a zero that drifts from 0 to size over the record).
 
 A second generator owes nothing to MuJoCo (`lab_rollout`): the DFKI lab's own analytic model of the double
 pendulum (`identify.diagnose.authors`, with any of their identified parameter sets, or the nominal MJCF's
@@ -77,7 +78,7 @@ IN_VOCABULARY = (
     "torque_offset",
     "viscous_friction",
 )
-OUT_OF_VOCABULARY = ("quadratic_drag", "torque_disturbance")
+OUT_OF_VOCABULARY = ("quadratic_drag", "torque_disturbance", "torque_dead_zone", "torque_drift")
 
 
 @dataclass(frozen=True)
@@ -430,7 +431,8 @@ def rollout(
     return plant, _measure(plant, effects, time, q_log, tau_log, cfg, rng, source, lead_s=0.5 * (1.0 / rate_hz - h))
 
 
-SENSOR_EFFECTS = ("time_delay", "torque_gain", "torque_offset", "joint_offset")  # what the sensors do, not the plant
+# what the sensors do, not the plant
+SENSOR_EFFECTS = ("time_delay", "torque_gain", "torque_offset", "joint_offset", "torque_dead_zone", "torque_drift")
 
 
 def _sensed(
@@ -448,6 +450,10 @@ def _sensed(
             tau[:, j] += e.size
         elif e.effect == "joint_offset":
             q[:, j] += e.size
+        elif e.effect == "torque_dead_zone":
+            tau[:, j] = np.sign(tau[:, j]) * np.maximum(np.abs(tau[:, j]) - e.size, 0.0)
+        elif e.effect == "torque_drift":
+            tau[:, j] += e.size * (time - time[0]) / max(float(time[-1] - time[0]), 1e-12)
     return q, tau
 
 
