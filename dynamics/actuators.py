@@ -79,7 +79,8 @@ def _kind(gain: float, bias_type: int, bias: np.ndarray) -> str:
 
 def _actuator(m: mujoco.MjModel, a: int, where: str) -> Actuator:
     name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
-    if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+    # `jointinparent` differs from `joint` only on ball and free joints, which the harness refuses anyway
+    if int(m.actuator_trntype[a]) not in (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT)):
         raise ModelError(f"{where}: actuator {name!r} is not a joint transmission; only joint actuators are supported")
     if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
         raise ModelError(

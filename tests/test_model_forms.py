@@ -209,6 +209,27 @@ def test_couplings_are_refused(tmp_path: Path, extra: str, message: str) -> None
         load_plant(path)
 
 
+def test_a_jointinparent_transmission_drives_a_hinge_as_a_joint_one_does(tmp_path: Path) -> None:
+    """`jointinparent` differs from `joint` only on ball and free joints; on a hinge it was refused as 'not a
+    joint transmission'."""
+    xml = (
+        '<mujoco><worldbody><body name="l1" pos="0 0 0.4"><joint name="j1" axis="0 1 0" range="-2 2"/>'
+        '<geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.03"/></body></worldbody>'
+        '<actuator><general {0}="j1" gear="2" ctrlrange="-5 5" ctrllimited="true"/></actuator></mujoco>'
+    )
+    plants = []
+    for kind in ("jointinparent", "joint"):
+        path = tmp_path / f"{kind}.xml"
+        path.write_text(xml.format(kind))
+        plants.append(load_plant(path))
+    (a,), (b,) = (p.actuation.actuators for p in plants)
+    assert (
+        (a.joint, a.gear, a.kind, a.torque_limit)
+        == (b.joint, b.gear, b.kind, b.torque_limit)
+        == (0, 2.0, "motor", 10.0)
+    )
+
+
 def test_a_model_without_joints_is_refused_and_one_without_actuators_cannot_be_run(tmp_path: Path) -> None:
     from harness.validate import ConfigError, check_driven
 
