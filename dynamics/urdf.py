@@ -10,6 +10,7 @@ torque limit is the URDF's effort limit. Joint velocity limits, which MuJoCo ign
 from __future__ import annotations
 
 import hashlib
+import re
 import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -75,11 +76,11 @@ def mjcf_from_urdf(path: Path) -> str:
     try:
         m = spec.compile()
     except ValueError as err:
-        moving = [name for name in massless if name in str(err)]
-        if moving and "mass and inertia of moving bodies" in str(err):
+        element = re.search(r"Element name '([^']*)'", str(err))  # the body MuJoCo names, quoted
+        if element and element.group(1) in massless and "mass and inertia of moving bodies" in str(err):
             raise ModelError(
-                f"{path}: link {moving[0]!r} has no <inertial> (no mass, as a URDF means it) and a joint moves it, "
-                "which MuJoCo cannot simulate: give it an <inertial> (a small mass and inertia where it is a "
+                f"{path}: link {element.group(1)!r} has no <inertial> (no mass, as a URDF means it) and a joint "
+                "moves it, which MuJoCo cannot simulate: give it an <inertial> (a small mass and inertia where it is a "
                 "virtual link between two joints)"
             ) from err
         raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {one_line(err)}") from err

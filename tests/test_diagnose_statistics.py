@@ -235,27 +235,38 @@ def test_a_white_residual_larger_than_its_noise_is_structure() -> None:
 
 
 def test_a_residual_mean_is_structure_unless_each_record_has_its_own_zero() -> None:
-    """A torque zero the model does not have is structure: a test about the mean did not see 0.13 N m of it."""
+    """A torque zero the model does not have is structure: a test about the mean did not see 0.13 N m of it.
+    Where each record's zero is its own (`own_zeros`: fitted per record), each record's mean is taken out."""
     from identify.diagnose.residuals import whiteness
 
     fs, floor = 500.0, np.array([0.05])
     x = _white(1, 5000, floor[0]) + 0.13
     (w,) = whiteness(x, floor, fs)
     assert w["structured"] and w["structured_rms"] == pytest.approx(0.13, rel=0.05)
-    (w,) = whiteness(x, floor, fs, count_mean=False)  # each record's zero fitted as a nuisance
+    (w,) = whiteness(x, floor, fs, own_zeros=np.zeros(5000, int))
     assert not w["structured"]
+    two = np.vstack([_white(5, 5000, floor[0]) + 0.05, _white(6, 5000, floor[0]) - 0.05])  # zeros of +-0.05
+    records = np.repeat([0, 1], 5000)
+    assert whiteness(two, floor, fs)[0]["structured"]
+    assert not whiteness(two, floor, fs, own_zeros=records)[0]["structured"]
 
 
 def test_the_angles_noise_in_the_model_torque_is_noise_not_structure() -> None:
     """Encoder noise differentiated twice reaches the model torque, in the band, where the torque sensor's floor
-    does not count it: given a draw of it (`state_noise`), the same power in the residual is noise."""
+    does not count it: given a draw of it (`state_noise`), the same power in the residual is noise. The draw
+    and the residual's noise are two samples of a coloured noise, whose powers differ by chance (by more than
+    half the sensor's floor in a third of the records): over 40 of them none is called structure."""
     from identify.diagnose.residuals import whiteness
 
     fs, floor = 500.0, np.array([0.01])
     sos = signal.butter(4, 8.0, fs=fs, output="sos")
-    states = signal.sosfiltfilt(sos, _white(2, 5000, 0.2), axis=0)  # noise of the states, in the band
-    x = _white(3, 5000, floor[0]) + signal.sosfiltfilt(sos, _white(4, 5000, 0.2), axis=0)
-    (w,) = whiteness(x, floor, fs)
-    assert w["structured"]
-    (w,) = whiteness(x, floor, fs, state_noise=states)
-    assert not w["structured"], w
+    for seed in range(0, 120, 3):
+        states = signal.sosfiltfilt(sos, _white(seed, 5000, 0.2), axis=0)  # the angles' noise, in the band
+        x = _white(seed + 1, 5000, floor[0]) + signal.sosfiltfilt(sos, _white(seed + 2, 5000, 0.2), axis=0)
+        if seed == 0:
+            assert whiteness(x, floor, fs)[0]["structured"]  # not counted, it is structure
+        (w,) = whiteness(x, floor, fs, state_noise=states)
+        assert not w["structured"], (seed, w)
+    # a 1.3 Hz torque twice that noise's RMS on top of it is structure
+    x = x + 2 * np.sqrt(2) * np.std(states) * np.sin(2 * np.pi * 1.3 * np.arange(5000) / fs)[:, None]
+    assert whiteness(x, floor, fs, state_noise=states)[0]["structured"]

@@ -335,6 +335,12 @@ def test_a_massless_urdf_link_that_a_joint_moves_is_named_with_the_fix(tmp_path:
     urdf = _urdf(tmp_path, "cross", '<link name="mid"/>', "revolute")
     with pytest.raises(ModelError, match=r"cross\.urdf: link 'mid' has no <inertial> .* give it an <inertial>"):
         load_plant(urdf)
+    # the link MuJoCo names, not the first massless link whose name is in its message ('base' is in every one
+    # of these, and 'm' in 'mass')
+    renamed = urdf.read_text().replace('"base"', '"m"').replace('"mid"', '"m_cross"')
+    urdf.write_text(renamed)
+    with pytest.raises(ModelError, match=r"cross\.urdf: link 'm_cross' has no <inertial>"):
+        load_plant(urdf)
 
 
 @pytest.mark.slow

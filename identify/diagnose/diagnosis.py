@@ -627,7 +627,7 @@ def diagnose(
         shifted = [dataclasses.replace(d, q=d.q - o) for d, o in zip(train, rest, strict=True)]
         tr = _records(plant, shifted, derivatives, options, band_hz)
     va = _records(plant, validation, derivatives, options, band_hz)
-    state_noise_va: list[np.ndarray | None] = []  # what the angles' noise adds to each validation record's torque
+    state_noise_va: list[np.ndarray] = []  # what the angles' noise adds to each validation record's torque
     for k, rec in enumerate([*tr, *va]):
         # a joint in its stops on much of the record carries the stop's force there: not compared, as a still one
         stopped = np.mean(_at_stops(plant, rec.data.q), axis=0) > STOPPED_SHARE
@@ -640,8 +640,8 @@ def diagnose(
         )
         share = state_noise_share(s.tau_nominal, s.smooth, noise, plant.nv)
         check_state_noise(plant, rec.data, share, derivatives, options, moving=moving, band_hz=band_hz)
-        if k >= len(tr):
-            state_noise_va.append(None if noise is None else s.smooth(noise))
+        if k >= len(tr):  # none where the states are not the angles' (0 there: no such noise in that record)
+            state_noise_va.append(np.zeros_like(s.tau_nominal) if noise is None else s.smooth(noise))
     names = plant.joint_names
     s_tr, unfitted, held_tr, stopped_tr = _training_signals(plant, tr)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]
@@ -802,12 +802,11 @@ def diagnose(
     band = _structure_band(va[0].data, derivatives, options)
     # the torques left out (`Signals.used`) are zeros in the residual: the noise expected is the share kept
     kept = sigma * np.sqrt(np.mean(s_va.used, axis=0) if s_va.used is not None else 1.0)
-    drawn = [n for n in state_noise_va if n is not None]
-    noise_va = np.concatenate(drawn) if len(drawn) == len(state_noise_va) else None
-    own_zeros = bool(record_offsets and len(tr) > 1)  # a validation record's torque zero is its own then
-    white_nom = whiteness(s_va.residual, kept, fs, band_hz=band, state_noise=noise_va, count_mean=not own_zeros)
+    noise_va = s_va.zero_unused(np.concatenate(state_noise_va))  # as the residual: 0 where a torque is left out
+    own_zeros = s_va.record if record_offsets else None  # each validation record's torque zero is its own then
+    white_nom = whiteness(s_va.residual, kept, fs, band_hz=band, state_noise=noise_va, own_zeros=own_zeros)
     left = s_va.in_band(s_va.tau - preds["calibrated"])
-    white_cal = whiteness(left, kept, fs, band_hz=band, state_noise=noise_va, count_mean=not own_zeros)
+    white_cal = whiteness(left, kept, fs, band_hz=band, state_noise=noise_va, own_zeros=own_zeros)
     verdict, reason = _with_drift(*_verdict(findings, s_va, preds, weights, white_nom, white_cal), drift)
     if demoted:
         reason = (

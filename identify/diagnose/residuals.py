@@ -114,7 +114,7 @@ def whiteness(
     min_structure: float = 0.5,
     max_excess: float = 1.0,
     state_noise: np.ndarray | None = None,
-    count_mean: bool = True,
+    own_zeros: np.ndarray | None = None,
 ) -> list[dict[str, float | bool]]:
     """Per joint: is there structure in the residual beyond white noise?
 
@@ -125,22 +125,24 @@ def whiteness(
     low band holds beyond it, its mean included (a torque offset is structure too, whatever its scatter), is
     `structured_rms`. Structured means that `structured_rms` exceeds `min_structure` times the noise floor (an
     effect size, so that huge records do not flag harmless colour, such as the state filter's own error on a
-    large torque) and the low band is not white noise: a Ljung-Box test of it (about its mean) rejects whiteness
-    at level `alpha`, or it holds more than (1 + `max_excess`^2) times `noise_in_band`^2, correlated from one
-    decimated sample to the next or not. The second test finds what the first misses: a sensor's dead zone left
-    a residual three times the noise's share that Ljung-Box took for white (p 0.5, `explained` by a torque gain
-    of 0.92), and a torque zero that drifted within the record left 0.13 N m of mean, which a test about the
-    mean does not see
-    (`no_discrepancy`).
+    large torque) and the low band is not noise:
+    - a Ljung-Box test of it (about its mean) rejects whiteness at level `alpha`, and `structured_rms` exceeds
+      `max_excess` times the angles' noise in the band (that noise is coloured by the derivative filter, so the
+      test rejects it too; its power is known only from one draw, a few tens of independent samples in a short
+      record, and a share of it is no structure), or
+    - whatever the test says, the low band holds more than (1 + `max_excess`^2) times `noise_in_band`^2. This
+      finds what the correlation test misses: a sensor's dead zone left a residual three times the noise's share
+      that Ljung-Box took for white (p 0.5, `explained` by a torque gain of 0.92), and a torque zero that drifted
+      within the record left 0.13 N m of mean, which a test about the mean does not see (`no_discrepancy`).
 
     Args:
         residual: (N, nv) torque residual [N m].
         floor: (nv,) noise floor [N m].
         sample_rate_hz: sampling rate [Hz].
-        state_noise: (M, nv) a draw of the torque the angles' noise adds to the model torque on these records
-            (`state_noise.state_noise_torque`, in the analysis band), or None.
-        count_mean: False where the records' torque zeros are their own (fitted per record as a nuisance): a
-            record's mean residual is then no structure.
+        state_noise: (N, nv) a draw of the torque the angles' noise adds to the model torque on these rows
+            (`state_noise.state_noise_torque`, in the analysis band; 0 where a record has none), or None.
+        own_zeros: (N,) the record of each row, where every record's torque zero is its own (fitted per record
+            as a nuisance): each record's mean residual is then no structure, and is taken out.
 
     Returns:
         One dict per joint: `ljung_box_p`, `structured_rms` [N m], `noise_in_band` [N m] (the sensor's and the
@@ -149,6 +151,10 @@ def whiteness(
     band = min(band_hz, 0.45 * sample_rate_hz)
     share = min(2 * band / sample_rate_hz, 1.0)
     sos = signal.butter(4, band, fs=sample_rate_hz, output="sos")
+    if own_zeros is not None:
+        residual = residual.copy()
+        for r in np.unique(own_zeros):
+            residual[own_zeros == r] -= residual[own_zeros == r].mean(axis=0)
     mean = residual.mean(axis=0)
     low = signal.sosfiltfilt(sos, residual - mean, axis=0)
     states_var = np.zeros(residual.shape[1])
@@ -164,11 +170,11 @@ def whiteness(
         q_stat = n * (n + 2) * float(np.sum(acf[1:] ** 2 / (n - np.arange(1, h + 1))))
         p = float(stats.chi2.sf(q_stat, h)) if h > 0 else 1.0
         expected = floor[j] ** 2 * share + states_var[j]
-        excess = float(np.var(low[:, j]) + (mean[j] ** 2 if count_mean else 0.0) - expected)
+        excess = float(np.var(low[:, j]) + mean[j] ** 2 - expected)
         srms = float(np.sqrt(max(excess, 0.0)))
-        scale = max(float(floor[j]), 1e-12)
         in_band = max(float(np.sqrt(expected)), 1e-12)
-        structured = bool(srms > min_structure * scale and (p < alpha or srms > max_excess * in_band))
+        beyond = float(np.sqrt(states_var[j])) if p < alpha else in_band
+        structured = bool(srms > min_structure * max(float(floor[j]), 1e-12) and srms > max_excess * beyond)
         out.append(
             {"ljung_box_p": p, "structured_rms": srms, "noise_in_band": float(in_band), "structured": structured}
         )
