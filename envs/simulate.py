@@ -228,19 +228,25 @@ def _servo_rates(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bo
     """
     inertia = _mass_diagonal(plant, q0)
     joint_implicit, actuator_implicit = _implicit_terms(m)
-    gains = _velocity_gains(plant)
+    gains, regulated = _velocity_gains(plant), _state_dependent(plant)
     out = np.zeros(len(plant.actuation.actuators))
     for i, a in enumerate(plant.actuation.actuators):
         j = a.joint
         kv_explicit = not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
+        if regulated[i]:  # at its ctrl limit its law acts through the ctrl, set at each step's start: explicitly
+            kv_explicit, gains[i] = True, a.bias[2] * a.gear**2
         damping = (-gains[i] if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
         out[i] = max(np.sqrt(max(-a.bias[1] * a.gear**2, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
     return out
 
 
 def _velocity_gains(plant: Plant) -> np.ndarray:
-    """(nu,) each actuator's joint-torque velocity gain b2 gear^2 [N m s/rad] (-kv for a servo; <= 0)."""
-    return np.array([a.bias[2] * a.gear**2 for a in plant.actuation.actuators], dtype=float)
+    """(nu,) each actuator's joint-torque velocity gain b2 gear^2 [N m s/rad] (-kv for a servo; <= 0) that MuJoCo
+    applies (0 for the actuators the simulation drives as motors, `_state_dependent`)."""
+    regulated = _state_dependent(plant)
+    return np.array(
+        [0.0 if r else a.bias[2] * a.gear**2 for a, r in zip(plant.actuation.actuators, regulated, strict=True)]
+    )
 
 
 def _split(rates: np.ndarray, h: float) -> int:
@@ -385,7 +391,7 @@ def _interval(
 ) -> np.ndarray | None:
     """Step d through one sample interval of `substeps` physics steps of `m`, the ctrl held except where
     `setpoints` (substeps, nu) is not NaN (from the second step on) and where `hold` (q, dq -> ctrl (nu,), NaN
-    for the actuators it leaves alone) gives the ctrl that keeps the sample's torque at each step's state.
+    for the actuators it leaves alone) gives the ctrl at each step's state (`_holding`).
     Returns the first step's velocity change (nv,), or None as soon as an actuator that `clamp` watches reaches
     its force range (d is then mid-way)."""
     v0, held = d.qvel.copy(), d.ctrl.copy()
@@ -483,19 +489,42 @@ def unstable(d: mujoco.MjData, joint_names: tuple[str, ...] = ()) -> str:
 def _state_dependent(plant: Plant) -> np.ndarray:
     """(nu,) the actuators that are no servo but whose force depends on the joint's angle or speed (a `general`
     actuator with an affine bias b1, b2). The controller asks each for a joint torque held over the sample, as it
-    asks a motor; held, their ctrl would not hold that torque once the state moves within the sample (the
-    physics step is split for their b1 spring), and the torque logged at the sample would not be the one that
-    moved the arm: a bias b1 gear^2 or b2 gear^2 came out of the identification as (dt - h) / 2 of itself in
-    viscous friction or inertia (Fv 0.258 +- 0.004 for 0.05 on a gear-3 joint). Their ctrl is recomputed at every
-    physics step for the sample's torque (a drive's current loop), so the torque is held as a motor's is."""
+    asks a motor; with its ctrl held, the force drifted with the state within the sample (and within an RK4
+    step's stages), and the torque logged at the sample was not the one that moved the arm: a bias b1 gear^2 or
+    b2 gear^2 came out of the identification as (dt - h) / 2 of itself in viscous friction or inertia (Fv 0.258
+    +- 0.004 for 0.05 on a gear-3 joint, z 53). The simulation drives each as a motor (`_as_motors`) whose force
+    is set at every physics step (`_holding`), as a drive's current loop holds a torque: the sample's torque
+    exactly, under every integrator, while its ctrl stays within its range; at its ctrl limit the actuator's own
+    law, force = gain ctrl_limit + bias(q, dq), at each step's start."""
     return np.array([a.state_dependent and not a.is_servo for a in plant.actuation.actuators], dtype=bool)
+
+
+def _as_motors(m: mujoco.MjModel, regulated: np.ndarray) -> mujoco.MjModel:
+    """`m`, or a copy in which each `regulated` actuator is a motor of force = ctrl, its force range kept."""
+    if not regulated.any():
+        return m
+    out = copy.deepcopy(m)
+    for a in np.flatnonzero(regulated):
+        out.actuator_biastype[a] = mujoco.mjtBias.mjBIAS_NONE
+        out.actuator_gainprm[a], out.actuator_biasprm[a] = 0.0, 0.0
+        out.actuator_gainprm[a, 0] = 1.0
+        out.actuator_ctrllimited[a] = 0
+    return out
 
 
 def _holding(
     actuation: Actuation, regulated: np.ndarray, torque: np.ndarray, q: np.ndarray, dq: np.ndarray
 ) -> np.ndarray:
-    """(nu,) the ctrl of each `regulated` actuator that applies the joint torque (nv,) at q, dq (NaN elsewhere)."""
-    return np.where(regulated, actuation.ctrl_for_torque(torque, q, dq), np.nan)
+    """(nu,) the force each `regulated` actuator applies (its `_as_motors` ctrl) at q, dq when asked for the joint
+    torque (nv,): its ctrl for that torque (`ctrl_for_torque`) within its ctrl range, through its own law (NaN for
+    the other actuators)."""
+    ctrl = actuation.ctrl_for_torque(torque, q, dq)
+    out = np.full(len(actuation.actuators), np.nan)
+    for i in np.flatnonzero(regulated):
+        a = actuation.actuators[i]
+        c = ctrl[i] if a.ctrl_range is None else float(np.clip(ctrl[i], *a.ctrl_range))
+        out[i] = a.gain * c + a.bias[0] + a.bias[1] * a.gear * q[a.joint] + a.bias[2] * a.gear * dq[a.joint]
+    return out
 
 
 def _run(
@@ -513,7 +542,8 @@ def _run(
     """Simulate sample by sample: ctrl from `control` at each sample (held), except where `targets` (times
     (M,) -> ctrl (M, nu), NaN where the held ctrl applies) sets it at every physics step. A sample interval in
     which a servo's force clamps is simulated again at the finer step of `_Clamp` (`meta["refined_samples"]`)."""
-    m = _resolved_model(plant, q0, hard_friction=hard_friction)
+    regulated = _state_dependent(plant)
+    m = _as_motors(_resolved_model(plant, q0, hard_friction=hard_friction), regulated)
     d = mujoco.MjData(m)
     dt_sample = t[1] - t[0]
     substeps = int(round(dt_sample / m.opt.timestep))
@@ -526,7 +556,6 @@ def _run(
     q, dq, ddq, applied, clamped, cmd, constraint = (np.empty((n, nv)) for _ in range(7))
     terms = _StepTerms(plant, m)
     clamp = _Clamp.of(plant, q0, m)
-    regulated = _state_dependent(plant)
     kind = mujoco.mjtState.mjSTATE_INTEGRATION
     start = np.empty(mujoco.mj_stateSize(m, kind))
     refined: list[int] = []
@@ -536,10 +565,14 @@ def _run(
     d.qpos[:], d.qvel[:] = q0, dq0
     for k, fine in enumerate(_setpoints(targets, t, m.opt.timestep, substeps)):
         state = d.qpos.copy(), d.qvel.copy()
-        d.ctrl[:] = control(k, *state)
+        ctrl = control(k, *state)
+        cmd[k] = plant.actuation.unclamped_torque(ctrl, *state)
+        # the torque of the sample, not its ctrl, is held where an actuator's force follows the state
+        hold = partial(_holding, plant.actuation, regulated, cmd[k].copy()) if regulated.any() else None
+        d.ctrl[:] = ctrl if hold is None else np.where(regulated, hold(*state), ctrl)
         mujoco.mj_forward(m, d)
         q[k], dq[k], ddq[k] = d.qpos, d.qvel, d.qacc
-        clamped[k], cmd[k] = d.qfrc_actuator, plant.actuation.unclamped_torque(d.ctrl, *state)
+        clamped[k] = d.qfrc_actuator
         applied[k] = clamped[k]
         constraint[k] = d.qfrc_constraint
         if d.ncon:
@@ -551,8 +584,6 @@ def _run(
         if clamp is not None:
             mujoco.mj_getState(m, d, start, kind)
             warnings = [int(w.number) for w in d.warning]
-        # the torque of the sample, not its ctrl, is held where an actuator's force follows the state
-        hold = partial(_holding, plant.actuation, regulated, cmd[k].copy()) if regulated.any() else None
         h, step = m.opt.timestep, _interval(m, d, fine, substeps, clamp, hold)
         if step is None:  # a watched servo clamped: this interval again, from its start, at the finer step
             assert clamp is not None

@@ -310,21 +310,22 @@ def test_a_menagerie_arms_data_hold_its_inverse_dynamics_on_filtered_positions()
     assert np.all(left < 2e-4), left
 
 
-def test_a_general_actuator_with_an_affine_bias_holds_its_torque_like_a_motor(tmp_path: Path) -> None:
+@pytest.mark.parametrize("integrator", ["Euler", "implicitfast", "RK4"])
+def test_a_general_actuator_with_an_affine_bias_holds_its_torque_like_a_motor(tmp_path: Path, integrator: str) -> None:
     """A `general` actuator whose force depends on the joint's angle and speed (b1, b2) is driven by a joint
-    torque held over the sample, as a motor is. Its b1 spring splits the physics step; with its ctrl held over
-    the sample the torque drifted with the state inside it while the torque logged was the sample's first, and
-    sysid-run gave a gear-3 joint's viscous friction as 0.258 +- 0.004 for 0.05 (z 53). Now the arm moves as
-    the plain-motor arm at the same physics step under the same torques, and logs the same torques."""
+    torque held over the sample, as a motor is. With its ctrl held over the sample its force drifted with the
+    state inside the sample (and inside RK4's stages) while the torque logged was the sample's first, and
+    sysid-run gave a gear-3 joint's viscous friction as 0.258 +- 0.004 for 0.05 (z 53). Now the arm moves as the
+    plain-motor arm at the same physics step under the same torques, and logs the same torques."""
     general = (
         '<general joint="j0" gear="3" gainprm="0.5" biastype="affine" biasprm="0.3 -25 -1.5"/>'
         '<general joint="j1" gear="1" gainprm="2" biastype="affine" biasprm="0 -20 -0.05"/>'
     )
-    biased = _arm(tmp_path / "general", actuators=general, integrator="Euler")
+    biased = _arm(tmp_path / "general", actuators=general, integrator=integrator)
     split = _substeps(biased)
-    assert split > 1  # the b1 spring splits the step: the case where a held ctrl drifts
+    assert split > 1  # the b1 spring splits the step: several physics steps in a sample
     xml = _ARM.format(
-        name="arm", integrator="Euler", flag="", d0=0.0, d1=0.0, actuators='<motor joint="j0"/><motor joint="j1"/>'
+        name="arm", integrator=integrator, flag="", d0=0.0, d1=0.0, actuators='<motor joint="j0"/><motor joint="j1"/>'
     ).replace('timestep="0.002"', f'timestep="{0.002 / split!r}"')
     plain = plant_from_xml(xml, "arm", tmp_path / "motor")
 
@@ -338,5 +339,28 @@ def test_a_general_actuator_with_an_affine_bias_holds_its_torque_like_a_motor(tm
     ]
     assert np.abs(runs[0].meta["q_true"] - runs[1].meta["q_true"]).max() < 1e-9
     assert np.abs(runs[0].tau - runs[1].tau).max() < 1e-9
+    assert runs[0].meta["saturated_fraction"] == [0.0, 0.0]
     exact = inverse_dynamics(biased, runs[0].meta["q_true"], runs[0].meta["dq_true"], runs[0].ddq)
     assert np.abs(exact - runs[0].meta["tau_applied"]).max() < 1e-9
+
+
+def test_a_general_actuator_at_its_ctrl_limit_applies_its_own_law(tmp_path: Path) -> None:
+    """Past its ctrl range the actuator cannot hold the torque asked: its force is gain x the limit plus its bias,
+    which follows the state (a spring of b1 gear^2 here), and the sample is saturated, not held at a spring of the
+    sample's angle (a held bias sampled a stiff spring at the sample rate and shook a light joint at 90 x its
+    acceleration bound)."""
+    general = '<general joint="j0" gear="3" gainprm="2" biastype="affine" biasprm="0 -25 0" ctrlrange="-1 1"/>'
+    arm = _arm(tmp_path, actuators=general + '<motor joint="j1"/>', integrator="Euler")
+
+    def torque(t: np.ndarray) -> np.ndarray:  # 3 x (2 x 1) = 6 N m at most through the ctrl: beyond it at times
+        return np.column_stack([9.0 * np.sin(2 * np.pi * 0.5 * t), np.zeros_like(t)])
+
+    data = simulate_open_loop(
+        arm, torque, duration_s=2.0, sensor=SensorModel(sample_rate_hz=500), rng=np.random.default_rng(0)
+    )
+    q, dq = data.meta["q_true"][:, 0], data.meta["dq_true"][:, 0]
+    law = 3.0 * (2.0 * np.sign(torque(data.time)[:, 0]) - 25.0 * 3.0 * q)  # at the limit, the actuator's own law
+    at_limit = np.abs(torque(data.time)[:, 0] / 3.0 + 75.0 * q) > 2.0 + 1e-6
+    assert 0.1 < at_limit.mean() < 0.9 and data.meta["saturated_fraction"][0] > 0.1
+    np.testing.assert_allclose(data.meta["tau_applied"][at_limit, 0], law[at_limit], atol=0.1)
+    assert np.all(np.isfinite(dq)) and np.abs(dq).max() < 50.0
