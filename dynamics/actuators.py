@@ -61,6 +61,10 @@ class Actuator:
     def is_servo(self) -> bool:
         return self.kind in ("position", "velocity")
 
+    def bias_force(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """Its affine bias b0 + b1 gear q + b2 gear dq [N] at its joint's angles q and speeds dq (any shape)."""
+        return self.bias[0] + self.bias[1] * self.gear * q + self.bias[2] * self.gear * dq  # type: ignore[no-any-return]
+
     @property
     def state_dependent(self) -> bool:
         """Its force depends on the joint's angle or speed (b1, b2): its ctrl is no torque command."""
@@ -152,8 +156,7 @@ class Actuation:
         out = np.empty((*np.shape(tau)[:-1], len(self.actuators)))
         for i, a in enumerate(self.actuators):
             j = a.joint
-            bias = a.bias[0] + a.bias[1] * a.gear * q[..., j] + a.bias[2] * a.gear * dq[..., j]
-            out[..., i] = (tau[..., j] / a.gear - bias) / a.gain
+            out[..., i] = (tau[..., j] / a.gear - a.bias_force(q[..., j], dq[..., j])) / a.gain
         return out
 
     def ctrl_for_reference(self, tau: np.ndarray, q: np.ndarray, dq: np.ndarray, setpoints: np.ndarray) -> np.ndarray:
@@ -177,18 +180,21 @@ class Actuation:
             j = a.joint
             out[:, i] = a.gear * (q_ref[:, j] if a.kind == "position" else dq_ref[:, j])
             if tau_ref is not None:
-                bias = a.bias[0] + a.bias[1] * a.gear * q_ref[:, j] + a.bias[2] * a.gear * dq_ref[:, j]
-                out[:, i] = (tau_ref[:, j] / a.gear - bias) / a.gain
+                out[:, i] = (tau_ref[:, j] / a.gear - a.bias_force(q_ref[:, j], dq_ref[:, j])) / a.gain
         return out
 
     def unclamped_torque(self, ctrl: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """(nv,) the joint torque the ctrl (nu,) asks for at q, dq (nv,), before any ctrl or force clamping."""
         out = np.zeros(self.nv)
-        for i, a in enumerate(self.actuators):
-            j = a.joint
-            force = a.gain * ctrl[i] + a.bias[0] + a.bias[1] * a.gear * q[j] + a.bias[2] * a.gear * dq[j]
-            out[j] = a.gear * force
+        for a, force in zip(self.actuators, self.forces(ctrl, q, dq), strict=True):
+            out[a.joint] = a.gear * force
         return out
+
+    def forces(self, ctrl: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """(nu,) each actuator's force gain ctrl + bias at q, dq (nv,) for the ctrl (nu,), before any clamping."""
+        return np.array(
+            [a.gain * ctrl[i] + a.bias_force(q[a.joint], dq[a.joint]) for i, a in enumerate(self.actuators)]
+        )
 
 
 def actuation_of(m: mujoco.MjModel, where: str) -> Actuation:
@@ -206,16 +212,17 @@ def actuation_of(m: mujoco.MjModel, where: str) -> Actuation:
     return Actuation(acts, m.nv)
 
 
-def as_motors(m: mujoco.MjModel, where: str) -> mujoco.MjModel:
+def as_motors(m: mujoco.MjModel, where: str, which: np.ndarray | None = None) -> mujoco.MjModel:
     """`m`, or a copy in which every actuator whose force depends on the state (a servo: force = kp ctrl -
-    kp q - kv dq) is a plain motor, force = ctrl, unclamped in ctrl: driven by the joint torque it applied
-    (ctrl = tau / gear, a log's measured torque), as a replay needs. Motors and affine actuators with a
-    constant bias (a calibrated torque sensor) are kept."""
-    servos = [a for a, act in enumerate(actuation_of(m, where).actuators) if act.state_dependent]
-    if not servos:
+    kp q - kv dq) is a plain motor, force = ctrl, unclamped in ctrl (its force range kept): driven by the joint
+    torque it applied (ctrl = tau / gear, a log's measured torque), as a replay needs. Motors and affine actuators
+    with a constant bias (a calibrated torque sensor) are kept. `which`: (nu,) bool, those actuators only."""
+    if which is None:
+        which = np.array([act.state_dependent for act in actuation_of(m, where).actuators], dtype=bool)
+    if not np.any(which):
         return m
     out = copy.deepcopy(m)
-    for a in servos:
+    for a in np.flatnonzero(which):
         out.actuator_biastype[a] = mujoco.mjtBias.mjBIAS_NONE
         out.actuator_gainprm[a], out.actuator_biasprm[a] = 0.0, 0.0
         out.actuator_gainprm[a, 0] = 1.0

@@ -17,7 +17,7 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from dynamics.actuators import Actuation
+from dynamics.actuators import Actuation, as_motors
 from dynamics.errors import ModelError
 from dynamics.friction import friction_parameters, ideal_friction
 from dynamics.plant import Plant
@@ -228,14 +228,13 @@ def _servo_rates(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bo
     """
     inertia = _mass_diagonal(plant, q0)
     joint_implicit, actuator_implicit = _implicit_terms(m)
-    gains, regulated = _velocity_gains(plant), _state_dependent(plant)
+    regulated = _state_dependent(plant)
     out = np.zeros(len(plant.actuation.actuators))
     for i, a in enumerate(plant.actuation.actuators):
         j = a.joint
-        kv_explicit = not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
-        if regulated[i]:  # at its ctrl limit its law acts through the ctrl, set at each step's start: explicitly
-            kv_explicit, gains[i] = True, a.bias[2] * a.gear**2
-        damping = (-gains[i] if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
+        # a regulated actuator's law acts through its ctrl, set at each step's start: explicitly
+        kv_explicit = regulated[i] or not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
+        damping = (-a.bias[2] * a.gear**2 if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
         out[i] = max(np.sqrt(max(-a.bias[1] * a.gear**2, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
     return out
 
@@ -492,39 +491,25 @@ def _state_dependent(plant: Plant) -> np.ndarray:
     asks a motor; with its ctrl held, the force drifted with the state within the sample (and within an RK4
     step's stages), and the torque logged at the sample was not the one that moved the arm: a bias b1 gear^2 or
     b2 gear^2 came out of the identification as (dt - h) / 2 of itself in viscous friction or inertia (Fv 0.258
-    +- 0.004 for 0.05 on a gear-3 joint, z 53). The simulation drives each as a motor (`_as_motors`) whose force
-    is set at every physics step (`_holding`), as a drive's current loop holds a torque: the sample's torque
+    +- 0.004 for 0.05 on a gear-3 joint, z 53). The simulation drives each as a motor (`as_motors`) whose
+    force is set at every physics step (`_holding`), as a drive's current loop holds a torque: the sample's torque
     exactly, under every integrator, while its ctrl stays within its range; at its ctrl limit the actuator's own
     law, force = gain ctrl_limit + bias(q, dq), at each step's start."""
     return np.array([a.state_dependent and not a.is_servo for a in plant.actuation.actuators], dtype=bool)
 
 
-def _as_motors(m: mujoco.MjModel, regulated: np.ndarray) -> mujoco.MjModel:
-    """`m`, or a copy in which each `regulated` actuator is a motor of force = ctrl, its force range kept."""
-    if not regulated.any():
-        return m
-    out = copy.deepcopy(m)
-    for a in np.flatnonzero(regulated):
-        out.actuator_biastype[a] = mujoco.mjtBias.mjBIAS_NONE
-        out.actuator_gainprm[a], out.actuator_biasprm[a] = 0.0, 0.0
-        out.actuator_gainprm[a, 0] = 1.0
-        out.actuator_ctrllimited[a] = 0
-    return out
-
-
 def _holding(
     actuation: Actuation, regulated: np.ndarray, torque: np.ndarray, q: np.ndarray, dq: np.ndarray
 ) -> np.ndarray:
-    """(nu,) the force each `regulated` actuator applies (its `_as_motors` ctrl) at q, dq when asked for the joint
+    """(nu,) the force each `regulated` actuator applies (its ctrl as a motor) at q, dq when asked for the joint
     torque (nv,): its ctrl for that torque (`ctrl_for_torque`) within its ctrl range, through its own law (NaN for
     the other actuators)."""
     ctrl = actuation.ctrl_for_torque(torque, q, dq)
-    out = np.full(len(actuation.actuators), np.nan)
     for i in np.flatnonzero(regulated):
-        a = actuation.actuators[i]
-        c = ctrl[i] if a.ctrl_range is None else float(np.clip(ctrl[i], *a.ctrl_range))
-        out[i] = a.gain * c + a.bias[0] + a.bias[1] * a.gear * q[a.joint] + a.bias[2] * a.gear * dq[a.joint]
-    return out
+        ctrl_range = actuation.actuators[i].ctrl_range
+        if ctrl_range is not None:
+            ctrl[i] = np.clip(ctrl[i], *ctrl_range)
+    return np.where(regulated, actuation.forces(ctrl, q, dq), np.nan)
 
 
 def _run(
@@ -543,7 +528,7 @@ def _run(
     (M,) -> ctrl (M, nu), NaN where the held ctrl applies) sets it at every physics step. A sample interval in
     which a servo's force clamps is simulated again at the finer step of `_Clamp` (`meta["refined_samples"]`)."""
     regulated = _state_dependent(plant)
-    m = _as_motors(_resolved_model(plant, q0, hard_friction=hard_friction), regulated)
+    m = as_motors(_resolved_model(plant, q0, hard_friction=hard_friction), plant.name, regulated)
     d = mujoco.MjData(m)
     dt_sample = t[1] - t[0]
     substeps = int(round(dt_sample / m.opt.timestep))

@@ -22,12 +22,12 @@ from dynamics.errors import ModelError
 from dynamics.plant import Plant
 from dynamics.prior import Prior, PriorSpec, make_prior
 from dynamics.regressor import ParameterModel
-from dynamics.torque import joint_torque
 from envs.dataset import Dataset, atomic_write, write_csv
 from excitation.criteria import conditioning
 from excitation.designs import grid
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
+from excitation.optimise import position_limit_ratios
 from harness.progress import printer
 from harness.results import run_job, summary_table, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
@@ -66,9 +66,7 @@ def limit_ratios(plant: Plant, design: FourierDesign, limits: Limits, data: Data
     """Worst use of each bound: on a dense grid of the design (position designs) or the simulated motion."""
     if torque_driven:
         return limits.ratios(data.meta["q_true"], data.meta["dq_true"], data.ddq, data.meta["tau_applied"])
-    t = grid(design, 4000)
-    q, dq, ddq = design.evaluate(t)
-    return limits.ratios(q, dq, ddq, joint_torque(plant, q, dq, ddq)[0])
+    return position_limit_ratios(plant, design, limits, grid(design, 4000))
 
 
 # the simulated motion may use a bound this much beyond the design before it counts as leaving the limits: the

@@ -30,7 +30,7 @@ def _share(plant, data: Dataset, band_hz: float | None = None) -> tuple[np.ndarr
     s = rec.signals
     rng = np.random.default_rng(0)
     noise = state_noise_torque(plant, data, rec.states, s.tau_nominal, "butterworth", OPTIONS, rng)
-    return state_noise_share(s.tau_nominal, s.smooth, noise, plant.nv), s
+    return state_noise_share(s.smooth(s.tau_nominal), None if noise is None else s.smooth(noise)), s
 
 
 def test_the_angle_noise_is_read_from_the_third_differences_under_the_motion() -> None:

@@ -638,10 +638,11 @@ def diagnose(
         noise = state_noise_torque(
             plant, rec.data, rec.states, s.tau_nominal, derivatives, options, np.random.default_rng(0)
         )
-        share = state_noise_share(s.tau_nominal, s.smooth, noise, plant.nv)
+        noise_band = None if noise is None else s.smooth(noise)
+        share = state_noise_share(s.smooth(s.tau_nominal), noise_band)
         check_state_noise(plant, rec.data, share, derivatives, options, moving=moving, band_hz=band_hz)
         if k >= len(tr):  # none where the states are not the angles' (0 there: no such noise in that record)
-            state_noise_va.append(np.zeros_like(s.tau_nominal) if noise is None else s.smooth(noise))
+            state_noise_va.append(np.zeros_like(s.tau_nominal) if noise_band is None else noise_band)
     names = plant.joint_names
     s_tr, unfitted, held_tr, stopped_tr = _training_signals(plant, tr)
     left_out = [{"source": tr[i].data.source, "joint": names[j]} for i, j in zip(*np.nonzero(unfitted), strict=True)]

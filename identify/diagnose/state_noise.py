@@ -56,23 +56,23 @@ def angle_noise(q: np.ndarray) -> np.ndarray:
     return 1.4826 * np.median(np.abs(d3), axis=0) / _THIRD_DIFFERENCE_GAIN  # type: ignore[no-any-return]
 
 
-def state_noise_share(tau_nominal: np.ndarray, smooth: Any, noise: np.ndarray | None, nv: int) -> np.ndarray:
+def state_noise_share(tau_band: np.ndarray, noise_band: np.ndarray | None) -> np.ndarray:
     """(nv,) the share of the variance of the nominal torque along the record that the angles' noise makes.
 
     Args:
-        tau_nominal: (M, nv) the nominal torque on the rows from the first to the last valid one.
-        smooth: the analysis band's low-pass of (M, nv) arrays (`Signals.smooth`).
-        noise: (M, nv) what the angles' noise adds to it (`state_noise_torque`), or None (a share of 0).
-        nv: joints.
+        tau_band: (M, nv) the nominal torque on the rows from the first to the last valid one, in the analysis
+            band (`Signals.smooth`).
+        noise_band: (M, nv) what the angles' noise adds to it (`state_noise_torque`), in the same band, or None
+            (a share of 0).
 
     Returns:
         0 for every joint where there is no such noise (`given`, `simulator` states, noiseless angles) or the
         model torque does not vary.
     """
-    if noise is None:
-        return np.zeros(nv)
-    var = np.var(smooth(tau_nominal), axis=0)
-    return np.where(var > 0, np.var(smooth(noise), axis=0) / np.maximum(var, 1e-300), 0.0)  # type: ignore[no-any-return]
+    if noise_band is None:
+        return np.zeros(tau_band.shape[1])
+    var = np.var(tau_band, axis=0)
+    return np.where(var > 0, np.var(noise_band, axis=0) / np.maximum(var, 1e-300), 0.0)  # type: ignore[no-any-return]
 
 
 def state_noise_torque(
@@ -183,6 +183,6 @@ def check_full_rate_state_noise(
 
     rng = rng or np.random.default_rng(0)
     noise = state_noise_torque(plant, head, states, tau_nominal, method, options, rng)
-    share = state_noise_share(tau_nominal, smooth, noise, plant.nv)
+    share = state_noise_share(smooth(tau_nominal), None if noise is None else smooth(noise))
     moving = moving_joints(data, plant.hinge)
     check_state_noise(plant, head, share, method, options, moving=moving, band_hz=band_hz)
