@@ -1,9 +1,11 @@
-"""Clearance of an arm from itself and from the floor along a motion.
+"""Clearance of an arm from itself, from the floor and from what stands fixed in its world along a motion.
 
 Shapes: the model's own collision geometry (geoms with a nonzero `contype` or `conaffinity`) where it has
 some, and for every moving body without any, a capsule from its frame to each child's frame (to its own
 centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `mj_geomDistance` between
-collision geoms, a closed form between capsules; the floor is the world plane z = 0.
+collision geoms, a closed form between capsules; the floor is the world plane z = 0. Obstacles: the collision
+geoms fixed to the world other than planes (a table, a pedestal, a wall box), each against the moving bodies'
+collision geoms (a body that has none, only its fallback capsule, is not checked against them).
 
 Pairs that can never be apart are left out: shapes on the same or adjacent bodies (parent and child), pairs
 MuJoCo excludes from contact, and pairs (or floor checks) already closer than the clearance at a reference
@@ -31,6 +33,7 @@ class _Shape:
     geom: int  # -1 for a fallback capsule
     ends: tuple[np.ndarray, np.ndarray]  # capsule end points in the body frame
     radius: float
+    fixed: bool = False  # an obstacle fixed to the world
 
 
 def _segment_closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -74,9 +77,11 @@ class Clearance:
                 a, b = si.body, sj.body
                 if a == b or parent[a] == b or parent[b] == a or (a, b) in excluded or (b, a) in excluded:
                     continue
+                if (si.fixed or sj.fixed) and (si.fixed == sj.fixed or min(si.geom, sj.geom) < 0):
+                    continue  # an obstacle against the moving collision geoms only
                 candidates.append((i, j))
         self.pairs = candidates
-        self.floor = list(range(len(shapes)))
+        self.floor = [k for k, shape in enumerate(shapes) if not shape.fixed]
         pair_d, floor_d = self._distances(np.atleast_2d(q_ref))
         self.pairs = [p for p, d in zip(self.pairs, pair_d.min(axis=0), strict=True) if d > clearance_m]
         self.floor = [k for k, d in zip(self.floor, floor_d.min(axis=0), strict=True) if d > clearance_m]
@@ -229,6 +234,14 @@ def clearance_for(plant: Plant, clearance_m: float, q_ref: np.ndarray) -> Cleara
     ]
     shapes = [_Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g)) for g in colliding]
     covered = {s.body for s in shapes}
+    plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
+    shapes += [
+        _Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g), fixed=True)
+        for g in range(m.ngeom)
+        if (m.geom_contype[g] or m.geom_conaffinity[g])
+        and m.body_weldid[m.geom_bodyid[g]] == 0
+        and int(m.geom_type[g]) != plane
+    ]
     for b in sorted(moving - covered):
         children = [c for c in range(1, m.nbody) if m.body_parentid[c] == b]
         targets = [m.body_pos[c].copy() for c in children] or [m.body_ipos[b].copy()]

@@ -83,7 +83,8 @@ class Limits:
         """A readable name of the most used bound, e.g. `dq (bound shoulder 8, elbow 8 rad/s)`."""
         key = self.binding_key(ratios)
         if key == "clearance" and self.clearance is not None:
-            return f"clearance (at least {self.clearance.clearance_m:.3g} m between links and to the floor)"
+            at_least = f"at least {self.clearance.clearance_m:.3g} m"
+            return f"clearance ({at_least} between links, to the floor and to fixed geoms)"
         units = {"q": "rad", "dq": "rad/s", "ddq": "rad/s^2", "tau": "N m"}
         bound = {"q": self.q_max, "dq": self.dq_max, "ddq": self.ddq_max, "tau": self.tau_max}[key]
         per_joint = ", ".join(f"{j} {b:.4g}" for j, b in zip(self.joint_names, bound, strict=True))

@@ -102,7 +102,8 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
             f"the simulated motion presses geom {c['geoms'][0]} against {c['geoms'][1]} {seen(c)}; "
             f"{len(contacts)} pair(s) in all): "
             "contact forces enter the torque and no model has them; keep them apart (a larger "
-            "system.limits.clearance_m, which also covers world geoms only where they are the floor plane) or take "
+            "system.limits.clearance_m, which covers the floor plane and the collision geoms fixed to the world; "
+            "a link without collision geoms only of the floor and the other links) or take "
             'them out of collision (contype="0" conaffinity="0")'
         )
     stops = data.meta.get("limits", [])

@@ -146,6 +146,22 @@ def _write(text: str) -> Path:
     return path
 
 
+def _kept_clear(name: str, plant, limits, model: ParameterModel, t: np.ndarray):  # type: ignore[no-untyped-def]
+    """The design `name` as the registry makes it, asserted 2 cm clear along the grid t."""
+    safe = design_excitation(
+        name,
+        plant,
+        limits,
+        model=model,
+        harmonics=3,
+        base_freq_hz=0.1,
+        torque_driven=False,
+        rng=np.random.default_rng(3),
+    )
+    assert limits.clearance.min_distance(safe.evaluate(t)[0]) >= 0.02
+    return safe
+
+
 def test_random_and_default_designs_keep_the_clearance_that_their_plain_scaling_breaks(arm) -> None:
     plant, _ = arm
     limits = limits_for(plant, velocity=3.0, acceleration=10.0, clearance_m=0.02)  # swings that fold the arm
@@ -160,15 +176,37 @@ def test_random_and_default_designs_keep_the_clearance_that_their_plain_scaling_
             **({"rng": np.random.default_rng(3)} if name == "random" else {}),
         )
         assert limits.clearance.min_distance(plain.evaluate(t)[0]) < 0.02  # scaled to q, dq, ddq, tau only
-        safe = design_excitation(
-            name,
-            plant,
-            limits,
-            model=model,
-            harmonics=3,
-            base_freq_hz=0.1,
-            torque_driven=False,
-            rng=np.random.default_rng(3),
-        )
-        assert limits.clearance.min_distance(safe.evaluate(t)[0]) >= 0.02
+        safe = _kept_clear(name, plant, limits, model, t)
         assert max(position_limit_ratios(plant, safe, limits, t).values()) <= 1.0
+
+
+def test_an_obstacle_fixed_to_the_world_is_kept_clear_of(tmp_path: Path) -> None:
+    """A box fixed to the world under link c's sweep: the clearance used to check the floor plane alone, so a
+    design could fold the arm onto the box and the run stopped after simulating, on the contact. The box is now a
+    shape of its own against the moving collision geoms (its distance and gradient through `mj_geomDistance`)."""
+    box = '<geom name="box" type="box" pos="0.6 0 0.3" size="0.05 0.05 0.05"/>'
+    path = tmp_path / "fold3_box.xml"
+    path.write_text(_ARM.replace("<worldbody>", f"<worldbody>{box}"))
+    plant = load_plant(path)
+    limits = limits_for(plant, velocity=3.0, acceleration=10.0, clearance_m=0.02)
+    clearance = limits.clearance
+    fixed = [k for k, s in enumerate(clearance.shapes) if s.fixed]
+    assert len(fixed) == 1 and any(fixed[0] in pair for pair in clearance.pairs)
+    assert fixed[0] not in clearance.floor
+    # link c tilted down 0.5 rad: its underside at x = 0.6 is z = 0.5 - 0.2 tan 0.5 - 0.03 = 0.361, 0.011 m above
+    # the box's top (0.35) at its corner nearest the joint (x = 0.55: 0.5 - 0.15 tan 0.5 - 0.03 / cos 0.5 = 0.384)
+    down = np.array([[0.0, 0.0, 0.5]])
+    assert clearance.min_distance(down) < 0.03  # the floor is 0.07 m from link a, nothing else as near
+    data = mujoco.MjData(plant.mj_model)
+    data.qpos[:] = down[0]
+    mujoco.mj_kinematics(plant.mj_model, data)
+    c = mujoco.mj_name2id(plant.mj_model, mujoco.mjtObj.mjOBJ_BODY, "c")
+    geom_c = int(np.flatnonzero(plant.mj_model.geom_bodyid == c)[0])
+    exact = mujoco.mj_geomDistance(plant.mj_model, data, clearance.shapes[fixed[0]].geom, geom_c, 1.0, None)
+    assert clearance.min_distance(down) == pytest.approx(exact)
+    q = np.random.default_rng(2).uniform(limits.q_min, limits.q_max, size=(40, plant.nv))
+    _check_smooth_distance(clearance, q)
+    plain = default_design(plant, limits, harmonics=3, base_freq_hz=0.1)
+    t = grid(plain, 4000)
+    assert limits.clearance.min_distance(plain.evaluate(t)[0]) < 0.02
+    _kept_clear("default", plant, limits, ParameterModel(plant), t)

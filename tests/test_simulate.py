@@ -229,8 +229,8 @@ def test_the_tracking_loop_is_stable_at_a_coarse_sample_rate(tmp_path: Path) -> 
 
 
 def test_contacts_are_reported_by_geom_pair(tmp_path: Path) -> None:
-    """A link swinging into a world-fixed block (the clearance check knows only the floor plane): the pair is
-    named with its bodies, with the samples it pressed in and when it first did."""
+    """A link swinging into a world-fixed block (tracked here without a design that keeps clear of it): the pair
+    is named with its bodies, with the samples it pressed in and when it first did."""
     xml = """<mujoco model="bump"><option timestep="0.002"/><worldbody>
       <geom name="block" type="box" pos="0.25 0 -0.25" size="0.05 0.05 0.05"/>
       <body name="arm"><joint name="j0" axis="0 1 0"/>

@@ -212,6 +212,7 @@ def test_a_broken_clearance_says_the_distance_kept(tmp_path: Path) -> None:
     motion = simulated_motion(_Swing(0.3), limits, _track(plant, _Swing(0.3)), torque_driven=False)  # type: ignore[arg-type]
     assert not motion["holds"]
     kept = re.search(
-        r"^clearance \(at least 0\.1 m between links and to the floor\): ([\d.]+) m at the closest$", motion["worst"]
+        r"^clearance \(at least 0\.1 m between links, to the floor and to fixed geoms\): ([\d.]+) m at the closest$",
+        motion["worst"],
     )
     assert kept is not None and float(kept.group(1)) == pytest.approx(0.041, abs=0.003), motion["worst"]
