@@ -75,10 +75,13 @@ class Clearance:
             for j in range(i + 1, len(shapes)):
                 sj = shapes[j]
                 a, b = si.body, sj.body
-                if a == b or parent[a] == b or parent[b] == a or (a, b) in excluded or (b, a) in excluded:
-                    continue
                 if (si.fixed or sj.fixed) and (si.fixed == sj.fixed or min(si.geom, sj.geom) < 0):
                     continue  # an obstacle against the moving collision geoms only
+                # a body and its parent are built to touch, but not a link and the world or a static body it hangs
+                # from: MuJoCo checks those (a base built to touch its first link drops out at the reference poses)
+                adjacent = not (si.fixed or sj.fixed) and (parent[a] == b or parent[b] == a)
+                if a == b or adjacent or (a, b) in excluded or (b, a) in excluded:
+                    continue
                 candidates.append((i, j))
         self.pairs = candidates
         self.floor = [k for k, shape in enumerate(shapes) if not shape.fixed]

@@ -210,3 +210,45 @@ def test_an_obstacle_fixed_to_the_world_is_kept_clear_of(tmp_path: Path) -> None
     t = grid(plain, 4000)
     assert limits.clearance.min_distance(plain.evaluate(t)[0]) < 0.02
     _kept_clear("default", plant, limits, ParameterModel(plant), t)
+
+
+@pytest.mark.parametrize("mount", ["world", "pedestal"])
+def test_an_obstacle_on_the_body_a_link_hangs_from_is_checked(tmp_path: Path, mount: str) -> None:
+    """A link and its parent body are built to touch and are not checked, but MuJoCo does check a link against
+    geoms of the world or of the static body it hangs from (its filter needs both bodies welded to the world). A
+    box in the world under a pendulum hung from the world, or a wall on the pedestal the pendulum hangs from, was
+    left out as the link's parent: no pair, and MuJoCo reported the contact. The base built to touch the link drops
+    out at the reference poses instead."""
+    rod = (
+        '<body name="arm" pos="0 0 0.5"><joint name="j0" axis="0 1 0" range="-2 2"/>'
+        '<geom name="rod" type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="1"/></body>'
+    )
+    obstacle = '<geom name="wall" type="box" pos="0.25 0 0.2" size="0.05 0.05 0.05"/>'
+    base = '<geom name="base" type="cylinder" pos="0 0 0.5" size="0.04 0.02"/>'
+    if mount == "world":
+        world = f"{obstacle}{base}{rod}"
+    else:
+        world = f'<body name="pedestal">{obstacle}{base}{rod}</body>'
+    xml = (
+        f'<mujoco model="hang"><compiler angle="radian"/><worldbody>{world}</worldbody>'
+        '<actuator><motor joint="j0" ctrlrange="-20 20"/></actuator></mujoco>'
+    )
+    path = tmp_path / "hang.xml"
+    path.write_text(xml)
+    plant = load_plant(path)
+    clearance = limits_for(plant, velocity=1.0, acceleration=5.0, clearance_m=0.02).clearance
+    m = plant.mj_model
+    geom = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, s.geom): k for k, s in enumerate(clearance.shapes)}
+    pairs = {frozenset((clearance.shapes[i].geom, clearance.shapes[j].geom)) for i, j in clearance.pairs}
+    names = {frozenset(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in p) for p in pairs}
+    assert names == {frozenset({"rod", "wall"})}, names  # the base touches the rod at every pose: left out
+    assert "base" in geom
+    swung = np.array([[-0.9]])  # the rod's tip towards the wall
+    data = mujoco.MjData(m)
+    data.qpos[:] = swung[0]
+    mujoco.mj_kinematics(m, data)
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in ("wall", "rod")]
+    exact = mujoco.mj_geomDistance(m, data, ids[0], ids[1], 1.0, None)
+    pair_d, _ = clearance._distances(swung)
+    assert exact < 0.05 and pair_d[0, 0] == pytest.approx(exact)
+    assert clearance.min_distance(swung) <= exact
