@@ -138,7 +138,14 @@ def simulate_open_loop(
     dq0 = np.zeros(plant.nv) if dq0 is None else dq0
     actuation = plant.actuation
     return _run(
-        plant, t, lambda k, q, dq: actuation.ctrl_for_torque(tau[k], q, dq), q0=q0, dq0=dq0, sensor=sensor, rng=rng
+        plant,
+        t,
+        lambda k, q, dq: actuation.ctrl_for_torque(tau[k], q, dq),
+        q0=q0,
+        dq0=dq0,
+        sensor=sensor,
+        rng=rng,
+        regulated=_state_dependent(plant, servos=True),  # a servo asked for a torque holds it, as a motor
     )
 
 
@@ -182,10 +189,13 @@ _SETPOINTS_PER_CALL = 1 << 16
 _FRICTION_IMPEDANCE = 0.999
 
 
-def _resolved_model(plant: Plant, q0: np.ndarray, *, hard_friction: bool = False) -> mujoco.MjModel:
+def _resolved_model(
+    plant: Plant, q0: np.ndarray, *, hard_friction: bool = False, regulated: np.ndarray | None = None
+) -> mujoco.MjModel:
     """The plant's model, its physics step divided (by a whole number) until stiff servos are resolved, and
-    (with `hard_friction`) its dry friction resolved at that step (`_hard_friction`)."""
-    m = _servo_resolved(plant, q0)
+    (with `hard_friction`) its dry friction resolved at that step (`_hard_friction`); `regulated`: the actuators
+    driven as motors (`_state_dependent`)."""
+    m = _servo_resolved(plant, q0, regulated)
     if not hard_friction or not np.any(m.dof_frictionloss > 0):
         return m
     return _hard_friction(copy.deepcopy(m))
@@ -207,10 +217,10 @@ def _hard_friction(m: mujoco.MjModel) -> mujoco.MjModel:
     return m
 
 
-def _servo_resolved(plant: Plant, q0: np.ndarray) -> mujoco.MjModel:
+def _servo_resolved(plant: Plant, q0: np.ndarray, regulated: np.ndarray | None = None) -> mujoco.MjModel:
     """The plant's model, its physics step divided (by a whole number) until stiff servos are resolved."""
     m = plant.mj_model
-    split = _split(_servo_rates(plant, q0, m), m.opt.timestep)
+    split = _split(_servo_rates(plant, q0, m, regulated=regulated), m.opt.timestep)
     if split <= 1:
         return m
     fine = copy.deepcopy(m)
@@ -218,17 +228,20 @@ def _servo_resolved(plant: Plant, q0: np.ndarray) -> mujoco.MjModel:
     return fine
 
 
-def _servo_rates(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bool = False) -> np.ndarray:
+def _servo_rates(
+    plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bool = False, regulated: np.ndarray | None = None
+) -> np.ndarray:
     """(nu,) each actuator's fastest rate [1/s] that `m`'s integrator takes explicitly, at the pose q0 (nv,).
 
     That is its spring sqrt(kp / M) (MuJoCo's implicit integrators take velocity derivatives only) and the
     part of its damper (kv + d) / M that the integrator does not take implicitly (`_implicit_terms`). With
     `clamped`, the rates while a force-limited actuator's force is at its range: MuJoCo then drops its
-    velocity derivative, and its kv is explicit under any integrator.
+    velocity derivative, and its kv is explicit under any integrator. `regulated`: the actuators driven as motors
+    (`_state_dependent`, its default).
     """
     inertia = _mass_diagonal(plant, q0)
     joint_implicit, actuator_implicit = _implicit_terms(m)
-    regulated = _state_dependent(plant)
+    regulated = _state_dependent(plant) if regulated is None else regulated
     out = np.zeros(len(plant.actuation.actuators))
     for i, a in enumerate(plant.actuation.actuators):
         j = a.joint
@@ -239,10 +252,9 @@ def _servo_rates(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, *, clamped: bo
     return out
 
 
-def _velocity_gains(plant: Plant) -> np.ndarray:
+def _velocity_gains(plant: Plant, regulated: np.ndarray) -> np.ndarray:
     """(nu,) each actuator's joint-torque velocity gain b2 gear^2 [N m s/rad] (-kv for a servo; <= 0) that MuJoCo
-    applies (0 for the actuators the simulation drives as motors, `_state_dependent`)."""
-    regulated = _state_dependent(plant)
+    applies (0 for the `regulated` actuators, which the simulation drives as motors: `_state_dependent`)."""
     return np.array(
         [0.0 if r else a.bias[2] * a.gear**2 for a, r in zip(plant.actuation.actuators, regulated, strict=True)]
     )
@@ -273,9 +285,9 @@ class _Clamp:
     watched: np.ndarray
 
     @staticmethod
-    def of(plant: Plant, q0: np.ndarray, m: mujoco.MjModel) -> _Clamp | None:
+    def of(plant: Plant, q0: np.ndarray, m: mujoco.MjModel, regulated: np.ndarray | None = None) -> _Clamp | None:
         """The clamp fallback of the resolved model `m`; None where `m`'s step resolves every clamped damper."""
-        rates = _servo_rates(plant, q0, m, clamped=True)
+        rates = _servo_rates(plant, q0, m, clamped=True, regulated=regulated)
         watched = rates * m.opt.timestep > _MAX_RATE_STEP
         if not np.any(watched):
             return None
@@ -304,7 +316,7 @@ class _StepTerms:
     takes them implicitly, implicit alone for Coriolis; v otherwise). RK4's state is the continuous one: none.
     """
 
-    def __init__(self, plant: Plant, m: mujoco.MjModel) -> None:
+    def __init__(self, plant: Plant, m: mujoco.MjModel, regulated: np.ndarray) -> None:
         joint_implicit, actuator_implicit = _implicit_terms(m)
         integrator = int(m.opt.integrator)
         self.semi_implicit = integrator != int(mujoco.mjtIntegrator.mjINT_RK4)
@@ -314,7 +326,9 @@ class _StepTerms:
         # the step's middle, the law's error then averages out over each step
         self.midpoint = not self.semi_implicit
         self.coriolis_implicit = integrator == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
-        self.gains = _velocity_gains(plant) if actuator_implicit else np.zeros(len(plant.actuation.actuators))
+        self.gains = (
+            _velocity_gains(plant, regulated) if actuator_implicit else np.zeros(len(plant.actuation.actuators))
+        )
         half = 0.5 * plant.damping
         self.damping = -half if joint_implicit else half  # times dv: d (v + dv / 2 - v_used)
         self.joints = plant.actuation.joints
@@ -494,7 +508,7 @@ def unstable(d: mujoco.MjData, joint_names: tuple[str, ...] = ()) -> str:
     return ""
 
 
-def _state_dependent(plant: Plant) -> np.ndarray:
+def _state_dependent(plant: Plant, servos: bool = False) -> np.ndarray:
     """(nu,) the actuators that are no servo but whose force depends on the joint's angle or speed (a `general`
     actuator with an affine bias b1, b2). The controller asks each for a joint torque held over the sample, as it
     asks a motor; with its ctrl held, the force drifted with the state within the sample (and within an RK4
@@ -503,8 +517,10 @@ def _state_dependent(plant: Plant) -> np.ndarray:
     +- 0.004 for 0.05 on a gear-3 joint, z 53). The simulation drives each as a motor (`as_motors`) whose
     force is set at every physics step (`_holding`), as a drive's current loop holds a torque: the sample's torque
     exactly, under every integrator, while its ctrl stays within its range; at its ctrl limit the actuator's own
-    law, force = gain ctrl_limit + bias(q, dq), at each step's start."""
-    return np.array([a.state_dependent and not a.is_servo for a in plant.actuation.actuators], dtype=bool)
+    law, force = gain ctrl_limit + bias(q, dq), at each step's start. With `servos` (an open-loop torque, which
+    a servo is asked for through its setpoint) the servos too: with its setpoint held, a stiff servo's force fell
+    along each RK4 step (0.93 of the torque's RMS left by inverse dynamics on filtered states, kp 200)."""
+    return np.array([a.state_dependent and (servos or not a.is_servo) for a in plant.actuation.actuators], dtype=bool)
 
 
 def _holding(
@@ -532,12 +548,13 @@ def _run(
     rng: np.random.Generator,
     targets: Callable[[np.ndarray], np.ndarray] | None = None,
     hard_friction: bool = False,
+    regulated: np.ndarray | None = None,
 ) -> Dataset:
     """Simulate sample by sample: ctrl from `control` at each sample (held), except where `targets` (times
     (M,) -> ctrl (M, nu), NaN where the held ctrl applies) sets it at every physics step. A sample interval in
     which a servo's force clamps is simulated again at the finer step of `_Clamp` (`meta["refined_samples"]`)."""
-    regulated = _state_dependent(plant)
-    m = as_motors(_resolved_model(plant, q0, hard_friction=hard_friction), plant.name, regulated)
+    regulated = _state_dependent(plant) if regulated is None else regulated
+    m = as_motors(_resolved_model(plant, q0, hard_friction=hard_friction, regulated=regulated), plant.name, regulated)
     d = mujoco.MjData(m)
     dt_sample = t[1] - t[0]
     substeps = int(round(dt_sample / m.opt.timestep))
@@ -548,8 +565,8 @@ def _run(
         )
     n, nv = len(t), m.nv
     q, dq, ddq, applied, clamped, cmd, constraint = (np.empty((n, nv)) for _ in range(7))
-    terms = _StepTerms(plant, m)
-    clamp = _Clamp.of(plant, q0, m)
+    terms = _StepTerms(plant, m, regulated)
+    clamp = _Clamp.of(plant, q0, m, regulated)
     kind = mujoco.mjtState.mjSTATE_INTEGRATION
     start = np.empty(mujoco.mj_stateSize(m, kind))
     refined: list[int] = []
@@ -614,7 +631,9 @@ def _run(
         # continuous motion by half a physics step, so the torque's instant is (dt - h) / 2 after the sample
         # (dt / 2 under RK4, whose state is the continuous one; a servo's torque is not held: it is sampled
         # with the state it depends on, at the same instant)
-        tau_lead_s=0.0 if plant.actuation.servo else 0.5 * (dt_sample - (m.opt.timestep if terms.semi_implicit else 0)),
+        tau_lead_s=0.0
+        if plant.actuation.servo and not regulated.any()
+        else 0.5 * (dt_sample - (m.opt.timestep if terms.semi_implicit else 0)),
         meta={
             "q_true": q,
             "dq_true": dq,

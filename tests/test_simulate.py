@@ -139,8 +139,8 @@ def test_a_clamped_servo_is_simulated_at_the_step_that_resolves_its_damper(
 
     resolved = simulate._servo_resolved
 
-    def everywhere(plant: Plant, q0: np.ndarray) -> mujoco.MjModel:  # the finer step for the whole run
-        fine = simulate._Clamp.of(plant, q0, resolved(plant, q0))
+    def everywhere(plant: Plant, q0: np.ndarray, regulated: np.ndarray | None = None) -> mujoco.MjModel:
+        fine = simulate._Clamp.of(plant, q0, resolved(plant, q0, regulated), regulated)  # the finer step throughout
         assert fine is not None
         return fine.model
 
@@ -318,17 +318,22 @@ def test_a_menagerie_arms_data_hold_its_inverse_dynamics_on_filtered_positions()
 
 
 @pytest.mark.parametrize("integrator", ["Euler", "implicitfast", "RK4"])
-def test_a_general_actuator_with_an_affine_bias_holds_its_torque_like_a_motor(tmp_path: Path, integrator: str) -> None:
+@pytest.mark.parametrize("kind", ["general", "servo"])
+def test_an_actuator_whose_force_follows_the_state_holds_its_torque_like_a_motor(
+    tmp_path: Path, integrator: str, kind: str
+) -> None:
     """A `general` actuator whose force depends on the joint's angle and speed (b1, b2) is driven by a joint
     torque held over the sample, as a motor is. With its ctrl held over the sample its force drifted with the
     state inside the sample (and inside RK4's stages) while the torque logged was the sample's first, and
     sysid-run gave a gear-3 joint's viscous friction as 0.258 +- 0.004 for 0.05 (z 53). Now the arm moves as the
-    plain-motor arm at the same physics step under the same torques, and logs the same torques."""
+    plain-motor arm at the same physics step under the same torques, and logs the same torques. So does a servo
+    asked for an open-loop torque through its setpoint (under RK4 inverse dynamics on its filtered states left
+    0.93 of a stiff servo's torque RMS)."""
     general = (
         '<general joint="j0" gear="3" gainprm="0.5" biastype="affine" biasprm="0.3 -25 -1.5"/>'
         '<general joint="j1" gear="1" gainprm="2" biastype="affine" biasprm="0 -20 -0.05"/>'
     )
-    biased = _arm(tmp_path / "general", actuators=general, integrator=integrator)
+    biased = _arm(tmp_path / kind, actuators=general if kind == "general" else _STIFF_SERVOS, integrator=integrator)
     split = _substeps(biased)
     assert split > 1  # the b1 spring splits the step: several physics steps in a sample
     xml = _ARM.format(
@@ -346,6 +351,7 @@ def test_a_general_actuator_with_an_affine_bias_holds_its_torque_like_a_motor(tm
     ]
     assert np.abs(runs[0].meta["q_true"] - runs[1].meta["q_true"]).max() < 1e-9
     assert np.abs(runs[0].tau - runs[1].tau).max() < 1e-9
+    assert runs[0].tau_lead_s == runs[1].tau_lead_s  # a held torque's instant
     assert runs[0].meta["saturated_fraction"] == [0.0, 0.0]
     exact = inverse_dynamics(biased, runs[0].meta["q_true"], runs[0].meta["dq_true"], runs[0].ddq)
     assert np.abs(exact - runs[0].meta["tau_applied"]).max() < 1e-9
