@@ -79,9 +79,13 @@ def friction_enabled(m: mujoco.MjModel) -> bool:
     return not m.opt.disableflags & off
 
 
-def applied_friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+def applied_friction_parameters(
+    m: mujoco.MjModel, frictionloss: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """((nv,) ramp width vt [rad/s], (nv,) lead 1 / B [s]) of the friction MuJoCo applies for each dof's
     frictionloss, whatever its solver parameters (see the module docstring); both 0 where a dof has none.
+    `frictionloss` (nv,): the widths for these values of Fc at the dofs' own solver parameters instead of the
+    model's (the shape a frictionloss the model lacks would take there).
 
     B is 2 / (dmax timeconst) for a positive `solref` (timeconst at least two physics steps unless `refsafe` is
     disabled) and -solref[1] / dmax for the direct form; vt = (1 - d) / d invweight0 Fc / B with d the impedance
@@ -92,7 +96,7 @@ def applied_friction_parameters(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarr
     speed, lead = np.zeros(m.nv), np.zeros(m.nv)
     refsafe = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_REFSAFE)
     for j in range(m.nv):
-        fc = float(m.dof_frictionloss[j])
+        fc = float(m.dof_frictionloss[j] if frictionloss is None else frictionloss[j])
         if fc <= 0:
             continue
         ref, imp = m.dof_solref[j], m.dof_solimp[j]

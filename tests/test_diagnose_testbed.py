@@ -61,21 +61,30 @@ def test_clean_data_from_a_coarse_encoder_have_no_discrepancy(monkeypatch: pytes
     assert dg.verdict == "no_discrepancy", (dg.verdict_reason, [f.name for f in dg.findings])
 
 
-def test_coulomb_friction_values_cover_the_truth_without_the_sticking_rows() -> None:
+@pytest.mark.parametrize("shape", ["ideal", "mujoco"])
+def test_coulomb_friction_values_cover_the_truth_without_the_sticking_rows(shape: str) -> None:
     """Near each reversal the simulated joint sticks while the drive's torque is within the breakaway, where the
     friction is anything within +-Fc, not Fc sign(dq): fitted there the law came out 2.5 to 5 of its stds low on
     every one of these seeds (0.0389 +- 0.0004 for 0.04 N m). The final fit leaves the slow rows of a joint with
-    a sign(dq) friction out (`SLIDING_FRACTION`), and the value is within its stds of the truth."""
+    a sign(dq) friction out (`SLIDING_FRACTION`), and the value is within its stds of the truth (`ideal`: the
+    logs' friction read as ideal Coulomb, `hard_friction`). The testbed's friction is MuJoCo's soft constraint,
+    whose own shape (`mujoco`, named by default) is a law of the speed and acceleration there too: its slow rows
+    are kept, and its value covers the truth as well."""
     zs = []
     for system, truth in (
         ("two_link", Injected("coulomb_friction", "shoulder", 0.04)),
         ("arm3", Injected("coulomb_friction", "elbow", 0.1)),
     ):
         for seed in range(4):
-            _, dg = diagnose_case(system, [truth], seed=seed)
+            _, dg = diagnose_case(system, [truth], seed=seed, hard_friction=shape == "ideal")
             f = next(f for f in dg.findings if f.target == truth.joint and "coulomb" in f.effect)
             zs.append((f.value - truth.size) / f.std)
-            assert 0.0 < dg.info["left_out_sticking"][truth.joint] < 0.3  # the slow rows, and only those
+            left_out = dg.info["left_out_sticking"].get(truth.joint, 0.0)
+            if shape == "ideal":
+                assert 0.0 < left_out < 0.3  # the slow rows, and only those
+                assert "MuJoCo's own constraint" not in f.counterpart
+            else:
+                assert left_out == 0.0 and "MuJoCo's own constraint" in f.counterpart, (left_out, f.counterpart)
     assert max(abs(z) for z in zs) < 2.5, zs
     assert abs(float(np.mean(zs))) < 1.0, zs
 
@@ -118,15 +127,12 @@ def test_hidden_effect_is_named_and_explained(system: str, truth: Injected) -> N
         f.std,
     )
     assert err < 0.25 * abs(expected - (1.0 if truth.effect == "torque_gain" else 0.0))
-    if truth.effect == "coulomb_friction" and dg.verdict == "unexplained_structure":
-        # MuJoCo's frictionloss is a soft constraint whose force also follows the acceleration the joint would have
-        # without it; the candidates' shapes follow the velocity alone, and what they leave where the joint turns
-        # round can exceed the noise (the wheel at seed 3: 3.6 times its share in the band). The verdict says so
-        left = [j for j, w in dg.whiteness["calibrated"].items() if w["structured"]]
-        assert left == [truth.joint], dg.verdict_reason
-        assert dg.remaining[truth.joint]["turning_round"]["share_of_residual"] > 0.5, dg.remaining
-    else:
-        assert dg.verdict == "explained", dg.verdict_reason
+    assert dg.verdict == "explained", dg.verdict_reason
+    if truth.effect == "coulomb_friction":
+        # the testbed hides a MuJoCo frictionloss at its default solver parameters, which turns over 9.5 ms before
+        # the joint reverses: fitted as sign(dq) it left structure where the joint turns round (the wheel at seed
+        # 3: 3.6 times the noise's share in the band, `unexplained_structure`); its own shape explains it
+        assert "MuJoCo's own constraint" in f.counterpart, f.counterpart
     assert dg.evidence_gain_ok if hasattr(dg, "evidence_gain_ok") else True
     if truth.effect == "cogging":
         assert f.parameters and "n = 6 " in f.note
@@ -841,3 +847,28 @@ def test_a_torque_lead_left_undeclared_is_pointed_out_with_its_size() -> None:
         else:
             assert abs(lead["delay_s"] + truth) < 3 * lead["std_s"], lead
             assert len(notes) == 1 and "data.tau_lead_s" in notes[0] and "(now 0 s)" in notes[0], dg.notes
+
+
+@pytest.mark.skipif(not (SHARED_ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
+def test_a_hidden_mujoco_frictionloss_is_explained_by_the_shape_mujoco_gives_it(tmp_path: Path) -> None:
+    """MuJoCo's frictionloss at its default solver parameters turns over 1 / B = 9.5 ms before the joint reverses
+    (`dynamics.friction`). Fitted as sign(dq), a hidden 2 N m on the UR5e's shoulder was named at its value but
+    left 0.14 N m there, most of it where the joint turns round, and the verdict was `unexplained_structure`.
+    The candidate shaped as MuJoCo applies a frictionloss at the joint's own parameters leaves 0.05 N m and is
+    written as the bare frictionloss, so that the calibrated MJCF applies the shape that was fitted."""
+    path = torque_driven(SHARED_ROBOTS / "ur5e.xml", tmp_path)
+    truth = Injected("coulomb_friction", "shoulder_lift_joint", 2.0)
+    plant, dg = diagnose_case("ur5e", [truth], seed=0, mjcf=path, settings=ARMS["ur5e"])
+    first = dg.findings[0]
+    assert (first.effect, first.target) == ("coulomb_friction", truth.joint), first.name
+    assert "MuJoCo's own constraint" in first.counterpart, first.counterpart
+    assert abs(first.value - truth.size) < 3 * first.std, (first.value, first.std)
+    assert dg.verdict == "explained", dg.verdict_reason
+    assert dg.models["calibrated"]["torque_rms"][truth.joint] < 0.08, dg.models["calibrated"]["torque_rms"]
+    out = tmp_path / "calibrated.xml"
+    out.write_text(dg.calibrated_xml)
+    written = mujoco.MjModel.from_xml_path(str(out))
+    dof = int(written.jnt_dofadr[plant.joint_names.index(truth.joint)])
+    assert written.dof_frictionloss[dof] == pytest.approx(first.value, rel=1e-5)  # to_xml keeps 6 digits
+    np.testing.assert_array_equal(written.dof_solref[dof], plant.mj_model.dof_solref[dof])  # MuJoCo's own
+    np.testing.assert_array_equal(written.dof_solimp[dof], plant.mj_model.dof_solimp[dof])

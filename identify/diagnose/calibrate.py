@@ -7,7 +7,9 @@ Mapping (what each finding becomes in `<system>_calibrated.xml`):
                                    Fc sat((dq + lead ddq) / vt) closest to Fc sign(dq) that the model's step
                                    simulates stably (`dynamics.friction.ideal_friction_speed`); MuJoCo's
                                    default parameters would turn it over at dq = -ddq / 105, well before a
-                                   reversal, over a ramp of metres per second on a light joint
+                                   reversal, over a ramp of metres per second on a light joint. Its variant
+                                   `mujoco` (`candidates.SOFT_FRICTION`) is that default shape, fitted as
+                                   such: the frictionloss alone, the joint's solver parameters left as they are
     smooth_coulomb_friction        the same with the fitted ramp width vt (and the lead stability asks for);
                                    `frictionloss_mapping` measures how closely MuJoCo's inverse dynamics follows
                                    the declared shape along the validation motion
@@ -49,7 +51,14 @@ import mujoco
 import numpy as np
 from scipy import optimize
 
-from dynamics.friction import friction_enabled, friction_shape, friction_solver, ideal_friction_speed, kept_ramp
+from dynamics.friction import (
+    applied_friction_parameters,
+    friction_enabled,
+    friction_shape,
+    friction_solver,
+    ideal_friction_speed,
+    kept_ramp,
+)
 from dynamics.inertia import (
     body_and_jacobian,
     is_consistent,
@@ -62,7 +71,7 @@ from dynamics.plant import Plant, own_body_parameters
 from dynamics.regressor import rigid_body_regressor
 from dynamics.sampling import random_states
 from dynamics.torque import inverse_dynamics, joint_torque
-from identify.diagnose.candidates import rotor_chain
+from identify.diagnose.candidates import SOFT_FRICTION, rotor_chain
 from identify.diagnose.select import Step
 from identify.diagnose.statistics import LinearFit
 
@@ -103,6 +112,8 @@ class Extension:
             docstring for each effect's parameters).
         friction_speed: (nv,) ramp width of each joint's friction where a smooth Coulomb shape was fitted
             [rad/s]; 0: ideal Coulomb. `calibrated_xml` replaces it by the width it writes.
+        soft_friction: (nv,) True where the fitted Coulomb friction is MuJoCo's own frictionloss at the joint's
+            solver parameters (`candidates.SOFT_FRICTION`): written without solreffriction / solimpfriction.
     """
 
     armature: np.ndarray
@@ -119,10 +130,13 @@ class Extension:
     notes: list[str] = field(default_factory=list)
     custom: list[tuple[str, int, tuple[float, ...]]] = field(default_factory=list)
     friction_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    soft_friction: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self) -> None:
         if self.friction_speed.size == 0:  # no shape given: every joint's friction ideal
             object.__setattr__(self, "friction_speed", np.zeros(len(self.armature)))
+        if self.soft_friction.size == 0:
+            object.__setattr__(self, "soft_friction", np.zeros(len(self.armature), bool))
 
     @classmethod
     def none(cls, plant: Plant) -> Extension:
@@ -198,6 +212,10 @@ def extension_from_fit(
         if c.effect == "smooth_coulomb_friction":
             ext.frictionloss[j] += full[0]
             ext.friction_speed[j] = float(c.variant)
+            continue
+        if c.effect == "coulomb_friction" and c.variant == SOFT_FRICTION:
+            ext.frictionloss[j] += full[0]
+            ext.soft_friction[j] = True
             continue
         if c.effect == "joint_stiffness":
             k_total = plant.stiffness[j] + full[0]
@@ -516,6 +534,15 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
             ext.friction_speed[j] = 0.0
             continue
         joint = spec.joint(name)
+        if ext.soft_friction[j]:  # MuJoCo's own shape at the joint's solver parameters, as fitted
+            unit, lead = (float(x[j]) for x in applied_friction_parameters(plant.mj_model, np.ones(plant.nv)))
+            ext.friction_speed[j] = unit * fc  # its width at the nominal model's inverse inertia, as fitted
+            if not np.isclose(invweight, float(plant.mj_model.dof_invweight0[j]), rtol=1e-9, atol=0.0):
+                # a fitted inertia moved dof_invweight0, and MuJoCo's width with it: that ramp, written as such
+                joint.solref_friction, joint.solimp_friction, ext.friction_speed[j] = kept_ramp(
+                    fc, ext.friction_speed[j], lead, invweight, step
+                )
+            continue
         if ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0:  # the joint's own ramp, its lead as well
             solref, solimp, ext.friction_speed[j] = kept_ramp(
                 fc, plant.friction_speed[j], plant.friction_lead[j], invweight, step

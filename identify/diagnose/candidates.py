@@ -7,7 +7,11 @@ times unknown coefficients (one group of columns per effect and joint or body):
     armature          ddq_j                                    c (kg m^2)                 joint `armature`
     viscous_friction  dq_j                                     c (N m s/rad)              joint `damping`
     coulomb_friction  sign(dq_j) (the joint's ramp if it       c (N m)                    joint `frictionloss`
-                      declares one, `dynamics.friction`)
+                      declares one, `dynamics.friction`);
+                      variant `mujoco`: the change of MuJoCo's                            (its solver parameters
+                      own frictionloss shape at the joint's                               left as they are)
+                      solver parameters, Fc sat((dq_j + ddq_j
+                      / B) / vt), vt = R Fc / B, from F0 to F0 + c
     joint_stiffness   q_j - springref_j, 1                     k = c0 (N m/rad)           `stiffness`, `springref`
     torque_offset     1                    (actuated only)     c (N m)                    actuator `biasprm`
     torque_gain       tau_nominal_j        (actuated only)     1 + c (measured / true)    actuator `gainprm`
@@ -62,7 +66,7 @@ import numpy as np
 from scipy import signal as sp_signal
 
 from dynamics.base import base_parameters
-from dynamics.friction import friction_shape
+from dynamics.friction import applied_friction_parameters, friction_enabled, friction_shape
 from dynamics.plant import INERTIAL_SYMBOLS, Plant
 from dynamics.regressor import ParameterModel, rigid_body_regressor
 from dynamics.sampling import independent_columns, random_states
@@ -344,6 +348,7 @@ MAX_LOAD_FRICTION = 0.5  # largest load-dependent friction coefficient (friction
 MAX_BACKLASH = 0.05  # widest backlash (lost motion) named [rad]
 MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/rad) [rad/(N m)]
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
+SOFT_FRICTION = "mujoco"  # the variant of `coulomb_friction` shaped as MuJoCo's own frictionloss constraint
 SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # ramp widths of a smooth Coulomb friction tried [rad/s]
 FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction")  # shapes of one joint frictionloss
 # forces the plant feels that change within a few ms as the velocity crosses zero: the residual holds them only
@@ -445,6 +450,111 @@ def _shape_friction(plant: Plant) -> list[Candidate]:
                 )
             )
     return out
+
+
+def _soft_friction(plant: Plant, train: Signals | None) -> list[Candidate]:
+    """Coulomb friction as MuJoCo applies a joint `frictionloss` at the joint's own solver parameters (MuJoCo's
+    defaults, solref 0.02 1 and solimp 0.9 0.95, where the joint sets none): Fc sat((dq + ddq / B) / vt) with
+    vt = R Fc / B (`dynamics.friction`). It turns over 1 / B (9.5 ms at the defaults) before the joint reverses;
+    an ideal sign(dq) leaves that turnover as structure, and an armature takes part of it. The width goes with
+    Fc, so the column is the change of that friction from the joint's nominal F0 to F0 + dF per unit dF, at the
+    dF the training residual gives (`_soft_friction_change`); without training signals, none."""
+    m = plant.mj_model
+    if train is None or not friction_enabled(m):
+        return []
+    unit_speed, lead = applied_friction_parameters(m, np.ones(plant.nv))
+    out = []
+    for j, name in enumerate(plant.joint_names):
+        if lead[j] <= 0:
+            continue
+        shape = _SoftFriction(float(plant.frictionloss[j]), float(unit_speed[j]), float(lead[j]))
+        change = _soft_friction_change(train, j, shape)
+        if change is None:
+            continue
+
+        def soft(s: Signals, j: int = j, shape: _SoftFriction = shape, change: float = change) -> np.ndarray:
+            return shape.column(s.dq[:, j], s.ddq[:, j], change)
+
+        note = (
+            f"Coulomb friction as MuJoCo applies a joint frictionloss at the joint's own solver parameters: "
+            f"Fc sat((dq + {lead[j]:.3g} ddq) / vt), vt = {unit_speed[j]:.3g} Fc rad/s (turning over "
+            f"{1e3 * lead[j]:.3g} ms before the joint reverses); written as the joint's frictionloss, its "
+            "solreffriction and solimpfriction left as they are"
+        )
+        out.append(
+            Candidate(
+                "coulomb_friction",
+                name,
+                "N m",
+                "joint frictionloss (MuJoCo's own constraint)",
+                (f"Fcm{j + 1}",),
+                _own_row(plant.nv, j, soft),
+                _first,
+                ((-shape.nominal, np.inf),),  # the joint's total friction stays >= 0
+                note,
+                SOFT_FRICTION,
+            )
+        )
+    return out
+
+
+@dataclass(frozen=True)
+class _SoftFriction:
+    """MuJoCo's friction of a joint at its own solver parameters: Fc sat((dq + lead ddq) / (unit_speed Fc)),
+    from its nominal frictionloss `nominal` [N m]."""
+
+    nominal: float
+    unit_speed: float
+    lead: float
+
+    def torque(self, dq: np.ndarray, ddq: np.ndarray, fc: float) -> np.ndarray:
+        """(N,) the friction torque of a frictionloss fc [N m] (0 for none)."""
+        if fc == 0:
+            return np.zeros(len(dq))
+        width = np.array([self.unit_speed * fc])
+        return fc * friction_shape(dq[:, None], ddq[:, None], width, np.array([self.lead]))[:, 0]  # type: ignore[no-any-return]
+
+    def unit(self, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """(N,) the shape at the nominal frictionloss per unit Fc (without one, the limit of a vanishing one: the
+        sign of dq + lead ddq): the column of a small change."""
+        if self.nominal == 0:
+            return np.sign(dq + self.lead * ddq)  # type: ignore[no-any-return]
+        return self.torque(dq, ddq, self.nominal) / self.nominal
+
+    def column(self, dq: np.ndarray, ddq: np.ndarray, change: float) -> np.ndarray:
+        """(N,) the change of the friction torque from the nominal frictionloss to nominal + `change`, per unit
+        change (exact at that change; the secant of a friction whose width goes with Fc)."""
+        return (self.torque(dq, ddq, self.nominal + change) - self.torque(dq, ddq, self.nominal)) / change
+
+
+def _soft_friction_change(train: Signals, j: int, shape: _SoftFriction) -> float | None:
+    """The change dF [N m] of joint j's MuJoCo-shaped frictionloss that the training residual gives, fitted with
+    the joint's viscous friction and armature beside it (three passes from the shape at F0: the column
+    goes with dF); None where the joint's torque is not measured, where the total would not be positive, or
+    where the change is not one (a joint without friction, or a lower one where it has none to lose)."""
+    rows = train.used[:, j] if train.used is not None else np.ones(train.n_samples, bool)
+    if not np.any(rows) or not train.actuated[j]:
+        return None
+    residual = train.residual[rows, j]
+    dq, ddq = train.dq[:, j], train.ddq[:, j]
+
+    def seen(x: np.ndarray, sharp: bool = False) -> np.ndarray:  # joint j's column as the fits see it
+        full = np.zeros(train.dq.shape)
+        full[:, j] = x
+        return train.in_band(train.through_states(full) if sharp else full)[rows, j]  # type: ignore[no-any-return]
+
+    column = shape.unit(dq, ddq)
+    change = 0.0
+    for _ in range(3):
+        sharp = seen(column, sharp=True)
+        if not np.any(np.abs(sharp) > 1e-9):  # a motion within the nominal ramp: the friction is not Fc's
+            return None
+        cols = np.column_stack([sharp, seen(dq), seen(ddq)])
+        change = float(np.linalg.lstsq(cols, residual, rcond=None)[0][0])
+        if shape.nominal + change <= 0 or change == 0:
+            return None
+        column = shape.column(dq, ddq, change)
+    return change
 
 
 def _load_friction(plant: Plant) -> list[Candidate]:
@@ -747,7 +857,10 @@ CANDIDATE_EFFECTS: dict[str, _Factory] = {
     "armature": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "armature"],
     "backlash": lambda p, rng, s: [c for c in _compliance(p) if c.effect == "backlash"],
     "cogging": lambda p, rng, s: _cogging(p, s),
-    "coulomb_friction": lambda p, rng, s: [c for c in _joint_effects(p) if c.effect == "coulomb_friction"],
+    "coulomb_friction": lambda p, rng, s: [
+        *(c for c in _joint_effects(p) if c.effect == "coulomb_friction"),
+        *_soft_friction(p, s),
+    ],
     "joint_elasticity": lambda p, rng, s: [c for c in _compliance(p) if c.effect == "joint_elasticity"],
     "joint_offset": lambda p, rng, s: [_joint_offset(p, j) for j in range(p.nv)],
     "joint_stiffness": lambda p, rng, s: [_stiffness(p, j) for j in range(p.nv)],
@@ -769,12 +882,19 @@ _SLIDE_UNITS = {"kg m^2": "kg", "N m s/rad": "N s/m", "N m": "N", "N m/rad": "N/
 
 
 def candidates(
-    plant: Plant, effects: list[str] | tuple[str, ...], rng: np.random.Generator, train: Signals | None = None
+    plant: Plant,
+    effects: list[str] | tuple[str, ...],
+    rng: np.random.Generator,
+    train: Signals | None = None,
+    *,
+    hard_friction: bool = False,
 ) -> list[Candidate]:
     """Every candidate of the named effects (see `CANDIDATE_EFFECTS`) for this plant.
 
     Args:
         train: the training signals, for candidates whose shape is read from the data (the cogging period).
+        hard_friction: the logs come from a simulation that applied each frictionloss as Coulomb friction: no
+            candidate shaped as MuJoCo's own frictionloss constraint (`SOFT_FRICTION`).
 
     Raises:
         ValueError: unknown effect name (the message lists the valid ones).
@@ -787,4 +907,5 @@ def candidates(
         replace(c, unit=_SLIDE_UNITS.get(c.unit, c.unit)) if c.target in slides else c
         for e in effects
         for c in CANDIDATE_EFFECTS[e](plant, rng, train)
+        if not (hard_friction and c.variant == SOFT_FRICTION)
     ]

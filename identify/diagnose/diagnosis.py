@@ -44,7 +44,15 @@ from identify.diagnose.calibrate import (
     frictionloss_mapping,
     predict_measured_torque,
 )
-from identify.diagnose.candidates import MAX_JOINT_OFFSET, Candidate, Signals, candidates, signals, stack_signals
+from identify.diagnose.candidates import (
+    MAX_JOINT_OFFSET,
+    SOFT_FRICTION,
+    Candidate,
+    Signals,
+    candidates,
+    signals,
+    stack_signals,
+)
 from identify.diagnose.residuals import (
     analyse_residual,
     changing_offsets,
@@ -675,7 +683,7 @@ def diagnose(
     floor = _noise_floor(tr, unfitted) * plant.actuated
     weights = _weights(plant, floor)
 
-    pool = candidates(plant, list(effects), rng, s_tr)
+    pool = candidates(plant, list(effects), rng, s_tr, hard_friction=hard_friction)
     nuisance = (
         _record_offset_columns(s_tr) if record_offsets and len(tr) > 1 else np.zeros((s_tr.n_samples, plant.nv, 0))
     )
@@ -1524,7 +1532,9 @@ def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.n
     joints = np.zeros(len(names), bool)
     for j, name in enumerate(names):
         effects = {st.candidate.effect for st in steps if st.candidate.target == name}
-        joints[j] = bool(effects & _SIGN_FRICTION) and not effects & _LOW_SPEED_SHAPES
+        # MuJoCo's own frictionloss shape is a ramp of the speed and acceleration: its slow rows are its law too
+        soft = any(st.candidate.target == name and st.candidate.variant == SOFT_FRICTION for st in steps)
+        joints[j] = bool(effects & _SIGN_FRICTION) and not effects & _LOW_SPEED_SHAPES and not soft
     mask = ~_slow_rows(s, joints)
     return None if mask.all() else mask
 

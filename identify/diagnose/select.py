@@ -65,7 +65,7 @@ from functools import partial
 import numpy as np
 from scipy import optimize
 
-from identify.diagnose.candidates import FRICTIONLOSS_EFFECTS, Candidate, Signals
+from identify.diagnose.candidates import FRICTIONLOSS_EFFECTS, SOFT_FRICTION, Candidate, Signals
 from identify.diagnose.statistics import LinearFit, correlation_time, fit_bounded
 
 __all__ = ["LinearFit", "SelectionOptions", "Step", "fit_columns", "select_effects"]
@@ -504,7 +504,10 @@ def select_effects(
         if best[1].effect in FRICTIONLOSS_EFFECTS:  # shapes of one frictionloss (one coefficient each): held-out error
             shapes = [a for a in admissible if a[1].effect in FRICTIONLOSS_EFFECTS and a[1].target == best[1].target]
             best = min(shapes, key=lambda a: _fold_mse(a[4], folds, n_folds))
-            ideal = [a for a in shapes if a[1].effect == "coulomb_friction"]  # no width picked from a grid
+            # the ideal shape unless another holds out clearly better: one with a width picked from a grid, or
+            # the one MuJoCo gives a frictionloss at the joint's own solver parameters (a drive's friction is not
+            # that constraint: on the DFKI logs it won the training folds by a little and lost the held-out files)
+            ideal = [a for a in shapes if a[1].effect == "coulomb_friction" and a[1].variant != SOFT_FRICTION]
             if ideal and _fold_mse(ideal[0][4], folds, n_folds) * (1 - options.native_preference) <= _fold_mse(
                 best[4], folds, n_folds
             ):
