@@ -245,10 +245,12 @@ def _servo_rates(
     out = np.zeros(len(plant.actuation.actuators))
     for i, a in enumerate(plant.actuation.actuators):
         j = a.joint
-        # a regulated actuator's law acts through its ctrl, set at each step's start: explicitly
+        # a regulated actuator's law acts through its ctrl, set at each step's start: explicitly, and only at its
+        # ctrl limit (`_holding`): without a ctrl range, never (an open-loop servo split the step 270-fold for it)
+        law = 0.0 if regulated[i] and a.ctrl_range is None else 1.0
         kv_explicit = regulated[i] or not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
-        damping = (-a.bias[2] * a.gear**2 if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
-        out[i] = max(np.sqrt(max(-a.bias[1] * a.gear**2, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
+        damping = (-a.bias[2] * a.gear**2 * law if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
+        out[i] = max(np.sqrt(max(-a.bias[1] * a.gear**2 * law, 0.0) / inertia[j]), max(damping, 0.0) / inertia[j])
     return out
 
 

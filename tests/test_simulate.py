@@ -81,8 +81,8 @@ def _track(plant: Plant, reference: _Waves, duration_s: float = 0.4, **kwargs): 
     )
 
 
-def _substeps(plant: Plant) -> int:
-    m = simulate._servo_resolved(plant, np.zeros(plant.nv))
+def _substeps(plant: Plant, regulated: np.ndarray | None = None) -> int:
+    m = simulate._servo_resolved(plant, np.zeros(plant.nv), regulated)
     return round(plant.mj_model.opt.timestep / m.opt.timestep)
 
 
@@ -330,12 +330,14 @@ def test_an_actuator_whose_force_follows_the_state_holds_its_torque_like_a_motor
     asked for an open-loop torque through its setpoint (under RK4 inverse dynamics on its filtered states left
     0.93 of a stiff servo's torque RMS)."""
     general = (
-        '<general joint="j0" gear="3" gainprm="0.5" biastype="affine" biasprm="0.3 -25 -1.5"/>'
-        '<general joint="j1" gear="1" gainprm="2" biastype="affine" biasprm="0 -20 -0.05"/>'
+        '<general joint="j0" gear="3" gainprm="0.5" biastype="affine" biasprm="0.3 -25 -1.5" ctrlrange="-1e3 1e3"/>'
+        '<general joint="j1" gear="1" gainprm="2" biastype="affine" biasprm="0 -20 -0.05" ctrlrange="-1e3 1e3"/>'
     )
-    biased = _arm(tmp_path / kind, actuators=general if kind == "general" else _STIFF_SERVOS, integrator=integrator)
+    servos = _STIFF_SERVOS.replace("forcerange", 'ctrlrange="-100 100" forcerange')
+    biased = _arm(tmp_path / kind, actuators=general if kind == "general" else servos, integrator=integrator)
     split = _substeps(biased)
-    assert split > 1  # the b1 spring splits the step: several physics steps in a sample
+    # the b1 spring splits the step where a ctrl limit can bring its law in: several physics steps in a sample
+    assert split > 1
     xml = _ARM.format(
         name="arm", integrator=integrator, flag="", d0=0.0, d1=0.0, actuators='<motor joint="j0"/><motor joint="j1"/>'
     ).replace('timestep="0.002"', f'timestep="{0.002 / split!r}"')
@@ -377,3 +379,17 @@ def test_a_general_actuator_at_its_ctrl_limit_applies_its_own_law(tmp_path: Path
     assert 0.1 < at_limit.mean() < 0.9 and data.meta["saturated_fraction"][0] > 0.1
     np.testing.assert_allclose(data.meta["tau_applied"][at_limit, 0], law[at_limit], atol=0.1)
     assert np.all(np.isfinite(dq)) and np.abs(dq).max() < 50.0
+
+
+def test_an_actuator_driven_as_a_motor_without_a_ctrl_range_does_not_split_the_step(tmp_path: Path) -> None:
+    """An actuator whose force is set from the sample's torque at every physics step (`_holding`) applies its own
+    law only at its ctrl limit: without a ctrl range, never, and its spring and damper ask for no finer step. An
+    open-loop servo arm split the step as its tracking does (3200 physics steps per 2 ms sample for kv 80 on the
+    light wrist under Euler, a review measured 350x the time); a ctrl range brings the law, and the split, back."""
+    plant = _arm(tmp_path / "free", actuators=_SERVOS.format(f0=50), integrator="Euler")
+    regulated = simulate._state_dependent(plant, servos=True)
+    assert regulated.all() and _substeps(plant) > 100  # tracking: the servos' own law, kv 80 explicit
+    assert _substeps(plant, regulated) == 1
+    limited_servos = _SERVOS.format(f0=50).replace("/>", ' ctrlrange="-3 3"/>')
+    limited = _arm(tmp_path / "limited", actuators=limited_servos, integrator="Euler")
+    assert _substeps(limited, regulated) == _substeps(limited) > 1

@@ -477,7 +477,8 @@ def _soft_friction(plant: Plant, train: Signals | None) -> list[Candidate]:
 
         note = (
             f"Coulomb friction as MuJoCo applies a joint frictionloss at the joint's own solver parameters: "
-            f"Fc sat((dq + {lead[j]:.3g} ddq) / vt), vt = {unit_speed[j]:.3g} Fc rad/s (turning over "
+            f"Fc sat((dq + {lead[j]:.3g} ddq) / vt), vt = {unit_speed[j]:.3g} Fc "
+            f"{'rad/s per N m' if plant.hinge[j] else 'm/s per N'} (turning over "
             f"{1e3 * lead[j]:.3g} ms before the joint reverses); written as the joint's frictionloss, its "
             "solreffriction and solimpfriction left as they are"
         )
