@@ -66,7 +66,19 @@ class Clearance:
         """`q_ref` (nv,) or (k, nv): the reference pose(s); pairs closer than the clearance at any are left out."""
         self.plant, self.shapes, self.clearance_m = plant, shapes, float(clearance_m)
         m = plant.mj_model
-        parent = m.body_parentid
+        parent, weld = m.body_parentid, m.body_weldid
+        filter_parent = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_FILTERPARENT)
+
+        def adjacent(a: int, b: int) -> bool:
+            """One rigid body, or a moving body and its moving parent, through any jointless bodies between (as
+            MuJoCo's contact filter reads them: a link and the world or a static body it hangs from are checked)."""
+            wa, wb = int(weld[a]), int(weld[b])
+            if wa == wb:
+                return True
+            if not filter_parent or wa == 0 or wb == 0:
+                return False
+            return int(weld[parent[wa]]) == wb or int(weld[parent[wb]]) == wa
+
         excluded = {
             (int(b1), int(b2)) for b1, b2 in zip(m.exclude_signature >> 16, m.exclude_signature & 0xFFFF, strict=True)
         }
@@ -77,10 +89,8 @@ class Clearance:
                 a, b = si.body, sj.body
                 if (si.fixed or sj.fixed) and (si.fixed == sj.fixed or min(si.geom, sj.geom) < 0):
                     continue  # an obstacle against the moving collision geoms only
-                # a body and its parent are built to touch, but not a link and the world or a static body it hangs
-                # from: MuJoCo checks those (a base built to touch its first link drops out at the reference poses)
-                adjacent = not (si.fixed or sj.fixed) and (parent[a] == b or parent[b] == a)
-                if a == b or adjacent or (a, b) in excluded or (b, a) in excluded:
+                # a base built to touch its first link drops out at the reference poses
+                if adjacent(a, b) or (a, b) in excluded or (b, a) in excluded:
                     continue
                 candidates.append((i, j))
         self.pairs = candidates

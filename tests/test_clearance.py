@@ -252,3 +252,32 @@ def test_an_obstacle_on_the_body_a_link_hangs_from_is_checked(tmp_path: Path, mo
     pair_d, _ = clearance._distances(swung)
     assert exact < 0.05 and pair_d[0, 0] == pytest.approx(exact)
     assert clearance.min_distance(swung) <= exact
+
+
+@pytest.mark.parametrize("filterparent", [True, False])
+def test_links_joined_through_a_jointless_body_are_adjacent_as_mujoco_reads_them(
+    tmp_path: Path, filterparent: bool
+) -> None:
+    """MuJoCo's contact filter reads a link's parent through any jointless (welded) bodies between: link a, a
+    flange body welded to it, link c on the flange are parent and child, and never collide. The clearance checked
+    a against c (bodies two apart), which MuJoCo does not, unless the model disables the parent filter."""
+    flag = "" if filterparent else '<option><flag filterparent="disable"/></option>'
+    xml = f"""<mujoco model="flange">{flag}<compiler angle="radian"/><worldbody>
+      <body name="a" pos="0 0 0.5"><joint name="j0" axis="0 1 0" range="-2 2"/>
+        <geom name="ga" type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="1"/>
+        <body name="flange" pos="0.3 0 0">
+          <geom name="gf" type="cylinder" size="0.01 0.005" contype="0" conaffinity="0" mass="0.1"/>
+          <body name="c" pos="0.02 0 0"><joint name="j1" axis="0 1 0" range="-2.5 2.5"/>
+            <geom name="gc" type="capsule" fromto="0.05 0 0 0.3 0 0" size="0.02" mass="1"/></body></body></body>
+    </worldbody><actuator><motor joint="j0" ctrlrange="-20 20"/><motor joint="j1" ctrlrange="-20 20"/></actuator>
+    </mujoco>"""
+    path = tmp_path / "flange.xml"
+    path.write_text(xml)
+    plant = load_plant(path)
+    clearance = limits_for(plant, velocity=1.0, acceleration=5.0, clearance_m=0.02).clearance
+    m = plant.mj_model
+    named = {
+        frozenset(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, clearance.shapes[k].geom) for k in pair)
+        for pair in clearance.pairs
+    }
+    assert named == (set() if filterparent else {frozenset({"ga", "gc"})}), named
