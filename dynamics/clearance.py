@@ -242,18 +242,14 @@ def clearance_for(plant: Plant, clearance_m: float, q_ref: np.ndarray) -> Cleara
     """The clearance check of a plant (see the module docstring), referenced to the pose q_ref (nv,)."""
     m = plant.mj_model
     moving = {int(b) for b in range(1, m.nbody) if m.body_weldid[b] != 0}
-    colliding = [
-        g for g in range(m.ngeom) if (m.geom_contype[g] or m.geom_conaffinity[g]) and m.geom_bodyid[g] in moving
-    ]
-    shapes = [_Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g)) for g in colliding]
+    colliding = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
+    shapes = [_Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g)) for g in colliding if m.geom_bodyid[g] in moving]
     covered = {s.body for s in shapes}
     plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
-    shapes += [
+    shapes += [  # the obstacles: fixed to the world (the floor plane has its own check)
         _Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g), fixed=True)
-        for g in range(m.ngeom)
-        if (m.geom_contype[g] or m.geom_conaffinity[g])
-        and m.body_weldid[m.geom_bodyid[g]] == 0
-        and int(m.geom_type[g]) != plane
+        for g in colliding
+        if m.geom_bodyid[g] not in moving and int(m.geom_type[g]) != plane
     ]
     for b in sorted(moving - covered):
         children = [c for c in range(1, m.nbody) if m.body_parentid[c] == b]

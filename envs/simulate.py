@@ -246,7 +246,8 @@ def _servo_rates(
     for i, a in enumerate(plant.actuation.actuators):
         j = a.joint
         # a regulated actuator's law acts through its ctrl, set at each step's start: explicitly, and only at its
-        # ctrl limit (`_holding`): without a ctrl range, never (an open-loop servo split the step 270-fold for it)
+        # ctrl limit (`_holding`): without a ctrl range, never (an open-loop servo arm took 3200 physics steps per
+        # 2 ms sample for it under implicitfast, where its tracking takes 12)
         law = 0.0 if regulated[i] and a.ctrl_range is None else 1.0
         kv_explicit = regulated[i] or not actuator_implicit or (clamped and bool(m.actuator_forcelimited[i]))
         damping = (-a.bias[2] * a.gear**2 * law if kv_explicit else 0.0) + (0.0 if joint_implicit else plant.damping[j])
@@ -322,11 +323,6 @@ class _StepTerms:
         joint_implicit, actuator_implicit = _implicit_terms(m)
         integrator = int(m.opt.integrator)
         self.semi_implicit = integrator != int(mujoco.mjtIntegrator.mjINT_RK4)
-        # RK4 moves the state within a step while the ctrl stays: a stiff servo's force then falls along the
-        # step from the law at its start (kp gear^2 dq h / 2 below it on average, which the identification read
-        # as viscous friction: 0.8 N m s/rad, z 600, for kp gear^2 800 at h 2 ms). Its setpoint is the target at
-        # the step's middle, the law's error then averages out over each step
-        self.midpoint = not self.semi_implicit
         self.coriolis_implicit = integrator == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
         self.gains = (
             _velocity_gains(plant, regulated) if actuator_implicit else np.zeros(len(plant.actuation.actuators))
@@ -339,6 +335,14 @@ class _StepTerms:
         # one joint on the world has a constant inertia, hence no Coriolis torque
         self._coriolis = plant.nv > 1
         self._scratch = mujoco.MjData(m)
+
+    @property
+    def midpoint(self) -> bool:
+        """Whether a servo's setpoint is the target at each physics step's middle (RK4). RK4 moves the state
+        within a step while the ctrl stays: a stiff servo's force then falls along the step from the law at its
+        start (kp gear^2 dq h / 2 below it on average, which the identification read as viscous friction: 0.8 N m
+        s/rad, z 600, for kp gear^2 800 at h 2 ms); with the middle's target the law's error averages out."""
+        return not self.semi_implicit
 
     def mean_velocity(self, v: np.ndarray, dv: np.ndarray) -> np.ndarray:
         """(nv,) the continuous motion's velocity at the sample, from the step's start v and change dv."""

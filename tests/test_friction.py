@@ -491,9 +491,6 @@ def test_mujocos_own_friction_shape_is_written_as_fitted(tmp_path: Path, arm: st
     dq, ddq = rng.normal(0.0, 1.0, (n, plant.nv)), rng.normal(0.0, 20.0, (n, plant.nv))
     dq[:, j] = rng.uniform(-3.0, 3.0, n) * unit[j] * (shape.nominal + change)  # across the ramp
     fitted = shape.torque(dq[:, j], ddq[:, j], shape.nominal + change)
-    assert np.allclose(
-        fitted - shape.torque(dq[:, j], ddq[:, j], shape.nominal), change * shape.column(dq[:, j], ddq[:, j], change)
-    )
     ext = Extension.none(plant)
     ext.frictionloss[j], ext.soft_friction[j], ext.armature[j] = change, True, armature
     path = tmp_path / "calibrated.xml"
@@ -542,4 +539,4 @@ def test_the_soft_friction_change_is_read_on_its_own_joints_rows() -> None:
         used=used,
         band_hz=5.0,
     )
-    assert _soft_friction_change(s, 1, shape) == pytest.approx(0.5, rel=1e-5)
+    assert _soft_friction_change(s, s.residual, 1, shape) == pytest.approx(0.5, rel=1e-5)

@@ -384,8 +384,9 @@ def test_a_general_actuator_at_its_ctrl_limit_applies_its_own_law(tmp_path: Path
 def test_an_actuator_driven_as_a_motor_without_a_ctrl_range_does_not_split_the_step(tmp_path: Path) -> None:
     """An actuator whose force is set from the sample's torque at every physics step (`_holding`) applies its own
     law only at its ctrl limit: without a ctrl range, never, and its spring and damper ask for no finer step. An
-    open-loop servo arm split the step as its tracking does (3200 physics steps per 2 ms sample for kv 80 on the
-    light wrist under Euler, a review measured 350x the time); a ctrl range brings the law, and the split, back."""
+    open-loop servo arm took 3200 physics steps per 2 ms sample for them (kv 80 on the light wrist), under
+    implicitfast too, where its tracking takes 12 (1 s of motion: 34.8 s); a ctrl range brings the law, and the
+    split, back."""
     plant = _arm(tmp_path / "free", actuators=_SERVOS.format(f0=50), integrator="Euler")
     regulated = simulate._state_dependent(plant, servos=True)
     assert regulated.all() and _substeps(plant) > 100  # tracking: the servos' own law, kv 80 explicit

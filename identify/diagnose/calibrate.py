@@ -511,10 +511,12 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
     if not changed and not kept:
         return
     m = spec.compile()  # the inverse inertias of the calibrated model (its inertials and joint refs)
-    for j in kept:  # MuJoCo's ramp goes with dof_invweight0: a fitted inertia must not move the friction with it
-        invweight = float(m.dof_invweight0[j])
-        if np.isclose(invweight, float(plant.mj_model.dof_invweight0[j]), rtol=1e-9, atol=0.0):
+    # MuJoCo's ramp goes with dof_invweight0: where a fitted inertia moved it, the ramp is written as such
+    moved = ~np.isclose(m.dof_invweight0, plant.mj_model.dof_invweight0, rtol=1e-9, atol=0.0)
+    for j in kept:
+        if not moved[j]:
             continue
+        invweight = float(m.dof_invweight0[j])
         joint = spec.joint(plant.joint_names[j])
         joint.solref_friction, joint.solimp_friction, _ = kept_ramp(
             float(m.dof_frictionloss[j]), plant.friction_speed[j], plant.friction_lead[j], invweight, m.opt.timestep
@@ -527,6 +529,8 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
             "but MuJoCo does not apply it until the flag is enabled"
         )
     step = float(m.opt.timestep)
+    # MuJoCo's own shape (`candidates.SOFT_FRICTION`): its width per unit Fc and lead at the nominal model
+    soft_speed, soft_lead = applied_friction_parameters(plant.mj_model, np.ones(plant.nv))
     for j in changed:
         name = plant.joint_names[j]
         fc, invweight = float(m.dof_frictionloss[j]), float(m.dof_invweight0[j])
@@ -535,12 +539,10 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
             continue
         joint = spec.joint(name)
         if ext.soft_friction[j]:  # MuJoCo's own shape at the joint's solver parameters, as fitted
-            unit, lead = (float(x[j]) for x in applied_friction_parameters(plant.mj_model, np.ones(plant.nv)))
-            ext.friction_speed[j] = unit * fc  # its width at the nominal model's inverse inertia, as fitted
-            if not np.isclose(invweight, float(plant.mj_model.dof_invweight0[j]), rtol=1e-9, atol=0.0):
-                # a fitted inertia moved dof_invweight0, and MuJoCo's width with it: that ramp, written as such
+            ext.friction_speed[j] = float(soft_speed[j]) * fc
+            if moved[j]:
                 joint.solref_friction, joint.solimp_friction, ext.friction_speed[j] = kept_ramp(
-                    fc, ext.friction_speed[j], lead, invweight, step
+                    fc, ext.friction_speed[j], float(soft_lead[j]), invweight, step
                 )
             continue
         if ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0:  # the joint's own ramp, its lead as well

@@ -463,12 +463,13 @@ def _soft_friction(plant: Plant, train: Signals | None) -> list[Candidate]:
     if train is None or not friction_enabled(m):
         return []
     unit_speed, lead = applied_friction_parameters(m, np.ones(plant.nv))
+    residual = train.residual  # low-passed on every access: once for every joint
     out = []
     for j, name in enumerate(plant.joint_names):
         if lead[j] <= 0:
             continue
         shape = _SoftFriction(float(plant.frictionloss[j]), float(unit_speed[j]), float(lead[j]))
-        change = _soft_friction_change(train, j, shape)
+        change = _soft_friction_change(train, residual, j, shape)
         if change is None:
             continue
 
@@ -528,15 +529,14 @@ class _SoftFriction:
         return (self.torque(dq, ddq, self.nominal + change) - self.torque(dq, ddq, self.nominal)) / change
 
 
-def _soft_friction_change(train: Signals, j: int, shape: _SoftFriction) -> float | None:
-    """The change dF [N m] of joint j's MuJoCo-shaped frictionloss that the training residual gives, fitted with
+def _soft_friction_change(train: Signals, residual: np.ndarray, j: int, shape: _SoftFriction) -> float | None:
+    """The change dF [N m] of joint j's MuJoCo-shaped frictionloss that the training residual (N, nv) gives, fitted with
     the joint's viscous friction and armature beside it (three passes from the shape at F0: the column
     goes with dF); None where the joint's torque is not measured, where the total would not be positive, or
     where the change is not one (a joint without friction, or a lower one where it has none to lose)."""
     rows = train.used[:, j] if train.used is not None else np.ones(train.n_samples, bool)
     if not np.any(rows) or not train.actuated[j]:
         return None
-    residual = train.residual[rows, j]
     dq, ddq = train.dq[:, j], train.ddq[:, j]
 
     def seen(x: np.ndarray, sharp: bool = False) -> np.ndarray:  # joint j's column as the fits see it
@@ -551,7 +551,7 @@ def _soft_friction_change(train: Signals, j: int, shape: _SoftFriction) -> float
         if not np.any(np.abs(sharp) > 1e-9):  # a motion within the nominal ramp: the friction is not Fc's
             return None
         cols = np.column_stack([sharp, seen(dq), seen(ddq)])
-        change = float(np.linalg.lstsq(cols, residual, rcond=None)[0][0])
+        change = float(np.linalg.lstsq(cols, residual[rows, j], rcond=None)[0][0])
         if shape.nominal + change <= 0 or change == 0:
             return None
         column = shape.column(dq, ddq, change)

@@ -1531,9 +1531,10 @@ def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.n
     what tells it, and they are kept. The selection, which compares the shapes, sees every row."""
     joints = np.zeros(len(names), bool)
     for j, name in enumerate(names):
-        effects = {st.candidate.effect for st in steps if st.candidate.target == name}
+        chosen = [st.candidate for st in steps if st.candidate.target == name]
+        effects = {c.effect for c in chosen}
         # MuJoCo's own frictionloss shape is a ramp of the speed and acceleration: its slow rows are its law too
-        soft = any(st.candidate.target == name and st.candidate.variant == SOFT_FRICTION for st in steps)
+        soft = any(c.variant == SOFT_FRICTION for c in chosen)
         joints[j] = bool(effects & _SIGN_FRICTION) and not effects & _LOW_SPEED_SHAPES and not soft
     mask = ~_slow_rows(s, joints)
     return None if mask.all() else mask
