@@ -1,16 +1,18 @@
 """Clearance of an arm from itself, from the floor and from what stands fixed in its world along a motion.
 
-Shapes: the model's own collision geometry (geoms with a nonzero `contype` or `conaffinity`) where it has
-some, and for every moving body without any, a capsule from its frame to each child's frame (to its own
-centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `mj_geomDistance` between
+Shapes: the model's own collision geometry (geoms with a nonzero `contype` or `conaffinity`, or in a `<pair>`)
+where it has some, and for every moving body without any, a capsule from its frame to each child's frame (to its
+own centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `mj_geomDistance` between
 collision geoms, a closed form between capsules; the floor is the world plane z = 0. Obstacles: the collision
 geoms fixed to the world other than planes (a table, a pedestal, a wall box), each against the moving bodies'
 collision geoms (a body that has none, only its fallback capsule, is not checked against them).
 
-Pairs that can never be apart are left out: shapes on the same or adjacent bodies (parent and child), pairs
-MuJoCo excludes from contact, and pairs (or floor checks) already closer than the clearance at a reference
-pose (links built to touch, the first link on its base): the model's `home` keyframe, its qpos0 and the
-middle of the joint ranges (where designs are centred).
+Pairs are those MuJoCo's contact filter would check: not shapes on the same or adjacent bodies (parent and child),
+not pairs of bodies a `<contact><exclude>` names, not geoms whose contype / conaffinity bitmasks never meet; a
+`<contact><pair>` of the model is checked whatever those filters say (its geoms are collision geoms here even with
+zero bitmasks). Pairs that can never be apart are left out: pairs (or floor checks) already closer than the
+clearance at a reference pose (links built to touch, the first link on its base): the model's `home` keyframe, its
+qpos0 and the middle of the joint ranges (where designs are centred).
 """
 
 from __future__ import annotations
@@ -82,6 +84,13 @@ class Clearance:
         excluded = {
             (int(b1), int(b2)) for b1, b2 in zip(m.exclude_signature >> 16, m.exclude_signature & 0xFFFF, strict=True)
         }
+        explicit = {frozenset((int(g1), int(g2))) for g1, g2 in zip(m.pair_geom1, m.pair_geom2, strict=True)}
+
+        def masked(g1: int, g2: int) -> bool:
+            """Two collision geoms whose contype / conaffinity bitmasks never let MuJoCo bring them into contact."""
+            ct, ca = m.geom_contype, m.geom_conaffinity
+            return not (int(ct[g1]) & int(ca[g2]) or int(ct[g2]) & int(ca[g1]))
+
         candidates = []
         for i, si in enumerate(shapes):
             for j in range(i + 1, len(shapes)):
@@ -89,8 +98,13 @@ class Clearance:
                 a, b = si.body, sj.body
                 if (si.fixed or sj.fixed) and (si.fixed == sj.fixed or min(si.geom, sj.geom) < 0):
                     continue  # an obstacle against the moving collision geoms only
+                if frozenset((si.geom, sj.geom)) in explicit:
+                    candidates.append((i, j))  # a <pair> of the model: MuJoCo checks it whatever the filters say
+                    continue
                 # a base built to touch its first link drops out at the reference poses
                 if adjacent(a, b) or (a, b) in excluded or (b, a) in excluded:
+                    continue
+                if min(si.geom, sj.geom) >= 0 and masked(si.geom, sj.geom):
                     continue
                 candidates.append((i, j))
         self.pairs = candidates
@@ -242,7 +256,8 @@ def clearance_for(plant: Plant, clearance_m: float, q_ref: np.ndarray) -> Cleara
     """The clearance check of a plant (see the module docstring), referenced to the pose q_ref (nv,)."""
     m = plant.mj_model
     moving = {int(b) for b in range(1, m.nbody) if m.body_weldid[b] != 0}
-    colliding = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
+    paired = {int(g) for g in (*m.pair_geom1, *m.pair_geom2)}
+    colliding = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g] or g in paired]
     shapes = [_Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g)) for g in colliding if m.geom_bodyid[g] in moving]
     covered = {s.body for s in shapes}
     plane = int(mujoco.mjtGeom.mjGEOM_PLANE)

@@ -254,6 +254,19 @@ def test_an_obstacle_on_the_body_a_link_hangs_from_is_checked(tmp_path: Path, mo
     assert clearance.min_distance(swung) == pytest.approx(exact)  # the wall is the nearest (the floor: 0.29 m)
 
 
+def _named_pairs(path: Path) -> tuple[set[frozenset[str]], set[str]]:
+    """(the clearance's pairs as sets of geom names, the names of its geom shapes) for the model at `path`."""
+    plant = load_plant(path)
+    clearance = limits_for(plant, velocity=1.0, acceleration=5.0, clearance_m=0.02).clearance
+    m = plant.mj_model
+
+    def name(k: int) -> str:
+        return str(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, clearance.shapes[k].geom))
+
+    named = {frozenset(name(k) for k in pair) for pair in clearance.pairs}
+    return named, {name(k) for k, s in enumerate(clearance.shapes) if s.geom >= 0}
+
+
 @pytest.mark.parametrize("filterparent", [True, False])
 def test_links_joined_through_a_jointless_body_are_adjacent_as_mujoco_reads_them(
     tmp_path: Path, filterparent: bool
@@ -273,11 +286,31 @@ def test_links_joined_through_a_jointless_body_are_adjacent_as_mujoco_reads_them
     </mujoco>"""
     path = tmp_path / "flange.xml"
     path.write_text(xml)
-    plant = load_plant(path)
-    clearance = limits_for(plant, velocity=1.0, acceleration=5.0, clearance_m=0.02).clearance
-    m = plant.mj_model
-    named = {
-        frozenset(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, clearance.shapes[k].geom) for k in pair)
-        for pair in clearance.pairs
-    }
+    named, _ = _named_pairs(path)
     assert named == (set() if filterparent else {frozenset({"ga", "gc"})}), named
+
+
+@pytest.mark.parametrize("case", ["default", "masked", "masked_but_paired", "paired_without_bitmasks"])
+def test_pairs_follow_mujocos_contype_conaffinity_filter_and_explicit_pairs(tmp_path: Path, case: str) -> None:
+    """Links a and c of the folding arm are the one pair it has. Geoms whose contype / conaffinity bitmasks never
+    meet are never brought into contact by MuJoCo, so a design need not keep them apart (they were checked,
+    which could make a motion the robot can do look infeasible); a `<contact><pair>` is checked whatever the
+    bitmasks say, even between geoms with none (such geoms were not shapes at all)."""
+    text = _ARM
+    names = ('fromto="0 0 0 0 0 0.4"', 'fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>\n        <body name="c"')
+    text = text.replace(names[0], f'name="ga" {names[0]}').replace(names[1], f'name="gb" {names[1]}')
+    text = text.replace(
+        '<geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>\n        </body>',
+        '<geom name="gc" type="capsule" fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>\n        </body>',
+    )
+    if case in ("masked", "masked_but_paired"):
+        text = text.replace('name="gc"', 'name="gc" contype="2" conaffinity="2"')
+    if case == "paired_without_bitmasks":
+        text = text.replace('name="gc"', 'name="gc" contype="0" conaffinity="0"')
+    if case in ("masked_but_paired", "paired_without_bitmasks"):
+        text = text.replace("<actuator>", '<contact><pair geom1="ga" geom2="gc"/></contact><actuator>')
+    path = tmp_path / "fold3_masks.xml"
+    path.write_text(text)
+    named, shapes = _named_pairs(path)
+    assert named == (set() if case == "masked" else {frozenset({"ga", "gc"})}), named
+    assert "gc" in shapes
