@@ -322,6 +322,20 @@ def test_an_angle_zero_half_a_turn_off_is_named_not_blamed_on_the_torque(turned:
         run_diagnosis(plant, dataclasses.replace(train, q=q), validation)
 
 
+@pytest.mark.parametrize("system", ["two_link", "pendulum"])
+def test_every_torque_flipped_is_named_as_such_not_as_angles_half_a_turn_off(system: str, tmp_path: Path) -> None:
+    """Every torque column negated: gravity then pulls the other way, as with every angle zero half a turn off,
+    and the refusal advised an offset of pi on the angles, which gave a wrong calibrated MJCF without a word (a
+    residual 50 times the noise). Inertia and friction flip too under a negated torque, not under pi: the refusal
+    now names the torque columns."""
+    plant, train, validation = simulate(system, [], 3, tmp_path)
+    flipped = dataclasses.replace(train, tau=-train.tau)
+    names = ", ".join(f"tau_{j}" for j in plant.joint_names)
+    subject = rf"every torque column \({names}\)" if plant.nv > 1 else f"the torque column {names}"
+    with pytest.raises(DataError, match=rf"{subject} runs against .* the sign looks flipped"):
+        run_diagnosis(plant, flipped, validation)
+
+
 @pytest.mark.parametrize(
     ("factor", "noise", "share"),
     [(1e-3, 0.0, r"0\.001"), (0.0, 1e-9, r"[\d.]+e-\d+"), (1e3, 0.0, "1e\\+03")],

@@ -316,8 +316,10 @@ def _shared_record(path: Path, edit: Callable[[np.ndarray], np.ndarray] | None =
 
 def test_every_shared_log_passes_the_torque_column_check_and_a_flipped_or_swapped_one_does_not() -> None:
     """Flipped: every file on the shoulder, and on the elbow wherever it is driven (C.1 144115's elbow is passive:
-    its torque is about zero, no sign to read). Swapped: where the two joints' nominal torques differ enough along
-    the motion (six of the ten files); a swap in a file where they do not is not named (no false claim)."""
+    its torque is about zero, no sign to read); both: every file (they had been read as both angle zeros half a
+    turn off, the offset advised giving a wrong calibrated MJCF). Swapped: where the two joints' nominal torques
+    differ enough along the motion (six of the ten files); a swap in a file where they do not is not named (no
+    false claim)."""
     from dynamics.plant import load_plant
 
     plant = load_plant("two_link")
@@ -348,6 +350,12 @@ def test_every_shared_log_passes_the_torque_column_check_and_a_flipped_or_swappe
                 assert "or another joint's column" in str(err)
     assert flipped == {"shoulder": len(files), "elbow": len(files) - 1}
     assert swapped == 6
+    every = 0  # both columns negated: refused in every file, as every column where the elbow carries torque enough
+    for path in files:
+        with pytest.raises(DataError, match="flipped") as err:
+            check_torque_columns(plant, *_shared_record(path, lambda tau: -tau))
+        every += "every torque column (tau_shoulder (the file's tau_meas1), tau_elbow" in str(err.value)
+    assert every == 7  # 05, 143704 and 144115: the shoulder named first (negating it alone does about as well)
 
 
 def test_a_finding_the_final_fit_leaves_at_its_value_of_no_effect_is_not_named() -> None:

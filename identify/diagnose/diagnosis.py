@@ -436,6 +436,9 @@ def _friction_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signal
 # share of its torque misfit (RMS over the actuated joints, in the analysis band)
 ANGLE_SWAP_RATIO = 0.5
 _ANGLE_SWAP_ROWS = 2000  # rows (evenly spaced) the swapped models are evaluated on
+# every torque column reads as flipped only where negating all of them leaves at most this share of the misfit
+# that negating the best single one leaves
+ONE_FLIPPED_RATIO = 0.8
 
 
 def _file_column(data: Dataset, ours: str) -> str:
@@ -448,10 +451,12 @@ def _check_angle_columns(
     plant: Plant, data: Dataset, signal: Signals, tau_band: np.ndarray, moving: list[int], src: str
 ) -> None:
     """Refuse a record whose angle zero is half a turn off the model's (a hinge's, or every moving hinge's: the
-    zero upright where the model's hangs), or whose two angle columns (of joints that move) are swapped: the
-    nominal model fed them turned by pi, or the other way round, fits the measured torque (`tau_band`: in the
-    analysis band) far better (`ANGLE_SWAP_RATIO`)
-    than fed them as given. Joints of other kinds (a hinge and a slide) are not paired.
+    zero upright where the model's hangs), whose two angle columns (of joints that move) are swapped, or whose
+    every torque column has the wrong sign: the nominal model fed the angles turned by pi, or the other way round,
+    or its torque negated, fits the measured torque (`tau_band`: in the analysis band) far better
+    (`ANGLE_SWAP_RATIO`) than as given; the best of these readings is named. Joints of other kinds (a hinge and a
+    slide) are not paired. Every torque flipped had been read as both zeros half a turn off (gravity pulls the
+    other way under both), and the offset it advised gave a wrong calibrated MJCF.
 
     Raises:
         DataError: the two columns (as the file names them) and both misfits.
@@ -470,6 +475,30 @@ def _check_angle_columns(
         return _file_column(data, f"q_{plant.joint_names[j]}")
 
     found: list[tuple[float, str]] = []  # (misfit, what the refusal says) of every alternative reading
+    driven = [int(j) for j in moving if act[j]]
+    negated = misfit(-signal.tau_nominal[rows])
+
+    def one_negated(j: int) -> float:
+        flip = signal.tau_nominal[rows].copy()
+        flip[:, j] *= -1.0
+        return misfit(flip)
+
+    # every torque negated (pi on the angles flips gravity alone, a flipped sign inertia and friction too), where
+    # it does clearly better than any single column negated (one flipped column, beside one that carries about no
+    # torque such as a passive joint's: the sign check below names it)
+    if driven and (len(driven) == 1 or negated < ONE_FLIPPED_RATIO * min(one_negated(j) for j in driven)):
+        names = ", ".join(_file_column(data, f"tau_{plant.joint_names[j]}") for j in driven)
+        subject = f"the torque column {names}" if len(driven) == 1 else f"every torque column ({names})"
+        found.append(
+            (
+                negated,
+                f"{subject} runs against the torque the nominal model needs: the model misses "
+                f"the measured torque by {own:.3g} (RMS over the actuated joints) as given and by {negated:.3g} "
+                "with it negated: the sign looks flipped; negate the scale in the column mapping "
+                "(data.columns.tau_<joint>: {column, scale: -1}); or, where the angles count the other way round "
+                "than the model's axes, negate the angles' and the velocities' scales instead",
+            )
+        )
     hinges = [j for j in moving if plant.hinge[j]]
     for turned in [[j] for j in hinges] + ([hinges] if len(hinges) > 1 else []):
         shifted = q.copy()
