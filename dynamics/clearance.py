@@ -3,9 +3,11 @@
 Shapes: the model's own collision geometry (geoms with a nonzero `contype` or `conaffinity`, or in a `<pair>`)
 where it has some, and for every moving body without any, a capsule from its frame to each child's frame (to its
 own centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `mj_geomDistance` between
-collision geoms, a closed form between capsules; the floor is the world plane z = 0. Obstacles: the collision
-geoms fixed to the world other than planes (a table, a pedestal, a wall box), each against the moving bodies'
-collision geoms (a body that has none, only its fallback capsule, is not checked against them).
+collision geoms, a closed form between capsules. Floors: the model's collision planes fixed to the world (a floor,
+a table top, a wall: each an infinite plane, as MuJoCo collides with it), or the world plane z = 0 where it has
+none; every moving shape is kept above each. Obstacles: the other collision geoms fixed to the world (a table, a
+pedestal, a wall box), each against the moving bodies' collision geoms (a body that has none, only its fallback
+capsule, is not checked against them).
 
 Pairs are those MuJoCo's contact filter would check: not shapes on the same or adjacent bodies (parent and child),
 not pairs of bodies a `<contact><exclude>` names, not geoms whose contype / conaffinity bitmasks never meet; a
@@ -38,6 +40,17 @@ class _Shape:
     fixed: bool = False  # an obstacle fixed to the world
 
 
+@dataclass(frozen=True)
+class _Plane:
+    """A floor: the half-space n . (x - point) >= 0 in the world frame (`normal` unit length)."""
+
+    point: np.ndarray
+    normal: np.ndarray
+
+
+_FLOOR = _Plane(np.zeros(3), np.array([0.0, 0.0, 1.0]))  # the world plane z = 0 where the model has no floor
+
+
 def _segment_closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The closest points c1 on segments p1-q1 and c2 on p2-q2, each (N, 3) from segments each (N, 3)."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
@@ -64,9 +77,17 @@ def _segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.nda
 class Clearance:
     """The smallest distance between an arm's non-adjacent links and to the floor, along joint angles."""
 
-    def __init__(self, plant: Plant, shapes: list[_Shape], q_ref: np.ndarray, clearance_m: float) -> None:
-        """`q_ref` (nv,) or (k, nv): the reference pose(s); pairs closer than the clearance at any are left out."""
-        self.plant, self.shapes, self.clearance_m = plant, shapes, float(clearance_m)
+    def __init__(
+        self,
+        plant: Plant,
+        shapes: list[_Shape],
+        q_ref: np.ndarray,
+        clearance_m: float,
+        planes: tuple[_Plane, ...] = (_FLOOR,),
+    ) -> None:
+        """`q_ref` (nv,) or (k, nv): the reference pose(s); pairs closer than the clearance at any are left out.
+        `planes`: the floors every moving shape is kept above."""
+        self.plant, self.shapes, self.clearance_m, self.planes = plant, shapes, float(clearance_m), planes
         m = plant.mj_model
         parent, weld = m.body_parentid, m.body_weldid
         filter_parent = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_FILTERPARENT)
@@ -108,7 +129,8 @@ class Clearance:
                     continue
                 candidates.append((i, j))
         self.pairs = candidates
-        self.floor = [k for k, shape in enumerate(shapes) if not shape.fixed]
+        # (shape, plane) floor checks
+        self.floor = [(k, f) for k, shape in enumerate(shapes) if not shape.fixed for f in range(len(planes))]
         pair_d, floor_d = self._distances(np.atleast_2d(q_ref))
         self.pairs = [p for p, d in zip(self.pairs, pair_d.min(axis=0), strict=True) if d > clearance_m]
         self.floor = [k for k, d in zip(self.floor, floor_d.min(axis=0), strict=True) if d > clearance_m]
@@ -135,8 +157,10 @@ class Clearance:
             si, sj = self.shapes[i], self.shapes[j]
             seg = _segment_distance(ends[i, 0], ends[i, 1], ends[j, 0], ends[j, 1])
             pair_d[:, k] = seg - si.radius - sj.radius
-        for k, i in enumerate(self.floor):
-            floor_d[:, k] = np.minimum(ends[i, 0, :, 2], ends[i, 1, :, 2]) - self.shapes[i].radius
+        for k, (i, f) in enumerate(self.floor):
+            plane = self.planes[f]
+            height = (ends[i] - plane.point) @ plane.normal  # (2, N): each end point above the plane
+            floor_d[:, k] = height.min(axis=0) - self.shapes[i].radius
         return pair_d, floor_d
 
     def min_distance(self, q: np.ndarray, *, max_points: int = 1000) -> float:
@@ -185,11 +209,12 @@ class Clearance:
         bodies = np.array([s.body for s in self.shapes], dtype=int)
         local = np.array([s.ends for s in self.shapes]).reshape(-1, 2, 3)  # (shapes, 2, 3) in the body frame
         radii = np.array([s.radius for s in self.shapes])
-        floor = np.array(self.floor, dtype=int)
+        floor = np.array([k for k, _ in self.floor], dtype=int)
+        point = np.array([self.planes[f].point for _, f in self.floor]).reshape(-1, 3)
+        normal = np.array([self.planes[f].normal for _, f in self.floor]).reshape(-1, 3)
         fromto = np.empty(6)
         jac1, jac2 = np.empty((3, nv)), np.empty((3, nv))
         distmax = self.clearance_m + 20 * temperature_m  # farther pairs weigh < exp(-20) in the soft minimum
-        down = np.array([0.0, 0.0, -1.0])
         for s in range(n):
             data.qpos[:] = q[s]
             mujoco.mj_kinematics(m, data)
@@ -205,9 +230,10 @@ class Clearance:
                     for a, b in zip(geoms[gi], geoms[gj], strict=True)
                 ]
             )
-            low = np.argmin(ends[floor, :, 2], axis=1)
+            heights = np.einsum("kea,ka->ke", ends[floor] - point[:, None, :], normal)  # (checks, 2)
+            low = np.argmin(heights, axis=1)
             floor_pts = ends[floor, low]
-            d_floor = floor_pts[:, 2] - radii[floor]
+            d_floor = heights[np.arange(len(floor)), low] - radii[floor]
             dk = np.concatenate([d_cap, d_geo, d_floor])
             lowest = float(dk.min())
             w = np.exp(-(dk - lowest) / temperature_m)
@@ -228,8 +254,9 @@ class Clearance:
                     b1, p1, b2, p2 = bodies[gi[k - nc]], fromto[:3].copy(), bodies[gj[k - nc]], fromto[3:].copy()
                     v = p2 - p1
                     u = np.sign(dist) * v / max(float(np.linalg.norm(v)), 1e-12)
-                else:  # floor: the shape's lowest end point moving up
-                    b1, p1, b2, p2, u = bodies[floor[k - nc - ng]], floor_pts[k - nc - ng], -1, p, down
+                else:  # floor: the shape's lowest end point moving along the plane's normal
+                    f = k - nc - ng
+                    b1, p1, b2, p2, u = bodies[floor[f]], floor_pts[f], -1, p, -normal[f]
                 mujoco.mj_jac(m, data, jac1, None, p1, int(b1))
                 g = -u @ jac1
                 if b2 >= 0:
@@ -261,15 +288,21 @@ def clearance_for(plant: Plant, clearance_m: float, q_ref: np.ndarray) -> Cleara
     shapes = [_Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g)) for g in colliding if m.geom_bodyid[g] in moving]
     covered = {s.body for s in shapes}
     plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
-    shapes += [  # the obstacles: fixed to the world (the floor plane has its own check)
+    shapes += [  # the obstacles: fixed to the world (planes are floors, checked as such)
         _Shape(int(m.geom_bodyid[g]), g, *_geom_capsule(m, g), fixed=True)
         for g in colliding
         if m.geom_bodyid[g] not in moving and int(m.geom_type[g]) != plane
     ]
+    floors = [g for g in colliding if m.geom_bodyid[g] not in moving and int(m.geom_type[g]) == plane]
+    data = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, data)  # where the world's planes are (they do not move with q)
+    planes = tuple(_Plane(data.geom_xpos[g].copy(), data.geom_xmat[g].reshape(3, 3)[:, 2].copy()) for g in floors) or (
+        _FLOOR,
+    )
     for b in sorted(moving - covered):
         children = [c for c in range(1, m.nbody) if m.body_parentid[c] == b]
         targets = [m.body_pos[c].copy() for c in children] or [m.body_ipos[b].copy()]
         for target in targets:
             if np.linalg.norm(target) > 1e-6:
                 shapes.append(_Shape(b, -1, (np.zeros(3), target), FALLBACK_RADIUS_M))
-    return Clearance(plant, shapes, q_ref, clearance_m)
+    return Clearance(plant, shapes, q_ref, clearance_m, planes)
