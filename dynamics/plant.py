@@ -39,6 +39,7 @@ __all__ = [
     "body_parameters",
     "check_against_mujoco",
     "load_plant",
+    "load_spec",
     "mjcf_path",
     "own_body_parameters",
     "pinocchio_from_mujoco",
@@ -170,6 +171,28 @@ class Plant:
         return tuple(f"{s}{j + 1}" for j in range(self.nv) for s in INERTIAL_SYMBOLS)
 
 
+def load_spec(path: Path) -> mujoco.MjSpec:
+    """The MjSpec of an MJCF file. MuJoCo's file reader picks its decoder by the suffix and knows only a lowercase
+    `.xml` (`MjModel.from_xml_path` compiles `M.XML`, `MjSpec.from_file` refuses it): a file named otherwise is
+    parsed from its text, its assets (meshes, textures) found from its own folder as MuJoCo would.
+
+    Raises:
+        ModelError: such a file `<include>`s others (parsed from its text, MuJoCo cannot find them): the message
+            asks for the lowercase suffix.
+    """
+    if path.suffix == ".xml":
+        return mujoco.MjSpec.from_file(str(path))
+    try:
+        spec = mujoco.MjSpec.from_string(path.read_text())
+    except ValueError as err:
+        raise ModelError(
+            f"{path}: MuJoCo reads this model's includes only from a file named with a lowercase .xml suffix "
+            f"({one_line(err)}); rename it to {path.stem}.xml"
+        ) from err
+    spec.modelfiledir = str(path.parent)
+    return spec
+
+
 def load_plant(system: str | Path) -> Plant:
     """Load a built-in system by name (see `SYSTEMS`), or any MJCF or URDF of hinge and slide joints by path.
 
@@ -184,6 +207,8 @@ def load_plant(system: str | Path) -> Plant:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
         raise ModelError(f"{source}: MuJoCo cannot load it: {one_line(err)}") from err
+    if path.suffix != ".xml":
+        load_spec(path)  # every later edit of the model reads its MjSpec: refuse here what it cannot read
     try:
         plant = plant_from_model(path, mj_model)
     except ModelError as err:  # a URDF's errors name the URDF, not the MJCF converted from it in a cache folder

@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from dynamics.errors import ModelError, one_line
-from dynamics.plant import Plant, load_plant, plant_from_model
+from dynamics.plant import Plant, load_plant, load_spec, plant_from_model
 from dynamics.regressor import ParameterModel
 
 __all__ = ["PRIOR_KINDS", "Prior", "PriorSpec", "make_prior", "perturbed_plant"]
@@ -135,7 +135,7 @@ def perturbed_plant(plant: Plant, spec: PriorSpec, rng: np.random.Generator, *, 
         path: the path the prior's plant reports (default: `<truth stem>_prior.xml` beside the truth).
     """
     m = plant.mj_model
-    spec_ = mujoco.MjSpec.from_file(str(plant.path))
+    spec_ = load_spec(plant.path)
     spec_.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
     by_name = {b.name: b for b in spec_.bodies}
     for b in range(1, m.nbody):

@@ -29,7 +29,7 @@ import numpy as np
 
 from dynamics.inertia import from_mass_com_inertia
 from dynamics.mjcf import write_inertial
-from dynamics.plant import Plant, body_parameters, plant_from_xml
+from dynamics.plant import Plant, body_parameters, load_spec, plant_from_xml
 from envs.sensors import SensorModel
 
 __all__ = ["HIDDEN_EFFECTS", "MJCF_EFFECTS", "SENSOR_EFFECTS", "HiddenEffect", "apply_effects"]
@@ -96,7 +96,7 @@ def apply_effects(
     mjcf_side = [e for e in effects if e.effect in MJCF_EFFECTS]
     out_plant = plant
     if mjcf_side:
-        spec = mujoco.MjSpec.from_file(str(plant.path))
+        spec = load_spec(plant.path)
         for e in mjcf_side:
             _apply_mjcf(spec, plant, e)
         spec.compile()

@@ -337,3 +337,34 @@ def test_a_payload_on_a_model_whose_inertia_comes_from_its_geoms_reaches_the_cal
     assert moment[1] - moment[0] == pytest.approx(0.1 * nominal.body_ipos[link2, 2], rel=0.05)
     rms = [dg.models[k]["torque_rms"]["elbow"] for k in ("nominal", "calibrated")]
     assert rms[1] < 0.3 * rms[0], rms
+
+
+def test_an_mjcf_named_with_an_upper_case_suffix_is_read_as_mujoco_compiles_it(tmp_path: Path) -> None:
+    """`M.XML`: `MjModel.from_xml_path` compiles it, `MjSpec.from_file` refuses it (MuJoCo picks its decoder by a
+    lowercase suffix), and every edit of the model (the prior, hidden effects, the calibrated MJCF) reads the
+    MjSpec: the run printed its settings and then failed on 'could not find decoder'. Such a file is read from its
+    text with its assets found from its folder (a mesh here); one that includes others cannot be, and is refused
+    at load with the rename it needs."""
+    from dynamics.prior import PriorSpec, perturbed_plant
+
+    (tmp_path / "meshes").mkdir()
+    corners = [(x, y, z) for z in (-0.02, 0.02) for y in (-0.02, 0.02) for x in (-0.02, 0.02)]
+    faces = ["1 2 4", "1 4 3", "5 7 8", "5 8 6", "1 5 6", "1 6 2", "3 4 8", "3 8 7", "1 3 7", "1 7 5", "2 6 8", "2 8 4"]
+    obj = "".join(f"v {x} {y} {z}\n" for x, y, z in corners) + "".join(f"f {f}\n" for f in faces)
+    (tmp_path / "meshes" / "cube.obj").write_text(obj)
+    xml = """<mujoco model="upper"><compiler meshdir="meshes"/><asset><mesh name="cube" file="cube.obj"/></asset>
+      <worldbody><body name="a" pos="0 0 0.5"><joint name="j1" axis="0 1 0" range="-2 2"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="1"/>
+        <body name="b" pos="0.3 0 0"><joint name="j2" axis="0 1 0" range="-2 2"/>
+          <geom type="mesh" mesh="cube" pos="0.2 0 0" density="5000"/></body></body></worldbody>
+      <actuator><motor joint="j1" ctrlrange="-20 20"/><motor joint="j2" ctrlrange="-20 20"/></actuator></mujoco>"""
+    path = tmp_path / "M.XML"
+    path.write_text(xml)
+    plant = load_plant(path)
+    assert plant.mj_model.body_mass[2] == pytest.approx(5000 * 0.04**3, rel=1e-6)  # the mesh found and weighed
+    prior = perturbed_plant(plant, PriorSpec(), np.random.default_rng(0), path=tmp_path / "prior.xml")
+    assert prior.mj_model.nbody == plant.mj_model.nbody
+    (tmp_path / "part.xml").write_text("<mujoco><worldbody/></mujoco>")
+    path.write_text(xml.replace("<worldbody>", '<include file="part.xml"/><worldbody>', 1))
+    with pytest.raises(ModelError, match=r"M\.XML: MuJoCo reads this model's includes only .* rename it to M\.xml"):
+        load_plant(path)

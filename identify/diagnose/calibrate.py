@@ -67,7 +67,7 @@ from dynamics.inertia import (
     transform_parameters,
 )
 from dynamics.mjcf import write_inertial
-from dynamics.plant import Plant, own_body_parameters
+from dynamics.plant import Plant, load_spec, own_body_parameters
 from dynamics.regressor import rigid_body_regressor
 from dynamics.sampling import random_states
 from dynamics.torque import inverse_dynamics, joint_torque
@@ -410,7 +410,7 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
             at random states (the least change of the model's predictions anywhere).
         comment: a line for the file's header comment.
     """
-    spec = mujoco.MjSpec.from_file(str(plant.path))
+    spec = load_spec(plant.path)
     spec.compiler.balanceinertia = True  # a safety net for the six digits the MJCF text keeps
     for j, name in enumerate(plant.joint_names):
         joint = spec.joint(name)

@@ -39,7 +39,7 @@ from scipy.integrate import solve_ivp
 
 from dynamics.errors import ModelError
 from dynamics.friction import applied_friction_parameters, kept_ramp
-from dynamics.plant import Plant, load_plant
+from dynamics.plant import Plant, load_plant, load_spec
 from envs.dataset import Dataset
 from envs.simulate import unstable
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
@@ -239,7 +239,7 @@ def torque_driven(mjcf: str | Path, folder: str | Path) -> Path:
             control as the joint's torque), or a servo without a `forcerange` (the force it could apply is
             unknown).
     """
-    spec = mujoco.MjSpec.from_file(str(mjcf))
+    spec = load_spec(Path(mjcf))
     compiled = spec.compile()
     if compiled.nu == 0:
         raise ValueError(f"{mjcf}: no actuator; the testbed drives the joints through them")
