@@ -326,11 +326,18 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         payload["reduced"] = {d.source: d.meta["reduced"] for d in datasets}
     payload["config"] = OmegaConf.to_container(cfg, resolve=True)
     stage("writing the outputs")
-    folder.retire()
     dataset = f"{cfg.data.get('name', 'csv')}: {', '.join(p.name for p in paths)}"
-    _write_outputs(
-        out, plant, result, payload, mjcf_name, record=bool(opts.get("recording", True)), dataset=dataset, final=final
-    )
+    with folder.staged() as staging:
+        _write_outputs(
+            staging,
+            plant,
+            result,
+            payload,
+            mjcf_name,
+            record=bool(opts.get("recording", True)),
+            dataset=dataset,
+            final=final,
+        )
     stage("done")
     print(_summary(payload))
     print(f"outputs in {out}")

@@ -6,6 +6,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import traceback
@@ -131,9 +132,9 @@ def describe_failure(err: BaseException) -> str:
     return f"{type(err).__name__}: {one_line(err)}"
 
 
-def _log_to_files(message: str) -> None:
+def _log_to_files(message: str, level: int = logging.ERROR) -> None:
     """Log `message` to the job's log files only (Hydra's `<job>.log`): the terminal gets one line, not two."""
-    record = logging.LogRecord("sysid", logging.ERROR, __file__, 0, message, None, None)
+    record = logging.LogRecord("sysid", level, __file__, 0, message, None, None)
     raising, logging.raiseExceptions = logging.raiseExceptions, False  # a full disk: no "Logging error" dump
     try:
         for handler in logging.getLogger().handlers:
@@ -180,9 +181,13 @@ def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
         from harness.sweep import run_isolated
 
         return run_isolated(work, cfg, out, label=f"job {hydra_cfg.job.num}")
+    job = hydra_cfg.job.name
     with terminate_as_exit():
+        # a folder's log is appended to: a run after a failed one in the same folder says that it started and
+        # finished, beside the failure it follows (the log read as a failure next to the new results)
+        _log_to_files(f"{job} started (pid {os.getpid()})", logging.INFO)
         try:
-            return work(cfg)
+            result = work(cfg)
         except BaseException as err:
             message = record_failure(out, err)
             if isinstance(err, USER_ERRORS):
@@ -193,3 +198,5 @@ def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
             if isinstance(err, KeyboardInterrupt):  # the user's own stop: the line above, no traceback
                 raise SystemExit(130) from None
             raise
+        _log_to_files(f"{job} finished: outputs in {out}", logging.INFO)
+        return result

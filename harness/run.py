@@ -323,8 +323,8 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
         "config": OmegaConf.to_container(cfg, resolve=True),
         "overrides": _overrides(),
     }
-    folder.retire()
-    _write_outputs(out, cfg, results, data, problem, est)
+    with folder.staged() as staging:
+        _write_outputs(staging, cfg, results, data, problem, est)
     print(summary_table(results))
     print(f"outputs in {out}")
     return results

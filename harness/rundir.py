@@ -13,8 +13,9 @@
   `.hydra/` record of their config;
 - temporary files that a killed run left (`.<name>.*.tmp`) are removed.
 
-`RunFolder.retire()` removes the previous run's outputs (results file first) just before the new ones are
-written, so that a rerun that fails while writing never leaves the old results beside new data.
+`RunFolder.staged()` gives a hidden folder to write the new outputs into; only once they are all written does
+`RunFolder.retire()` remove the previous run's outputs (results file first) and the new ones take their place, so
+that a rerun that fails or is stopped while writing neither leaves the old results beside new data nor loses them.
 `terminate_as_exit()` turns SIGTERM into `SystemExit`, so that every `finally` and temporary-file clean-up
 runs when a scheduler stops the job.
 """
@@ -24,6 +25,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import shutil
 import signal
 import tempfile
 from collections.abc import Iterator, Sequence
@@ -44,6 +46,7 @@ __all__ = [
 ]
 
 LOCK_NAME = ".sysid.lock"
+STAGING_PREFIX = ".staged."  # the folder a run writes its outputs into before they replace the previous ones
 RESULTS_FILES = ("results.json", "diagnosis.json")  # what marks a finished run of each tool (sysid-run, -diagnose)
 
 
@@ -62,6 +65,24 @@ class RunFolder:
         """Remove the previous outputs (the results file, the last of `outputs`, first) and any failure record."""
         for name in (*reversed(self.outputs), "failure.json"):
             (self.path / name).unlink(missing_ok=True)
+
+    @contextmanager
+    def staged(self) -> Iterator[Path]:
+        """A hidden folder inside the run folder to write the new outputs into. When the block ends normally the
+        previous outputs are retired and the new ones renamed into place (the results file last, each rename
+        atomic); when it fails, or the run is stopped while writing, the staged files go and the previous
+        outputs stay as they were (a kill that leaves the staging folder: the next `claim` removes it). Writing
+        took seconds (the recording) after the previous results had been removed: a run stopped then lost them."""
+        stage = Path(tempfile.mkdtemp(dir=self.path, prefix=STAGING_PREFIX, suffix=".tmp"))
+        try:
+            yield stage
+            self.retire()
+            results = self.outputs[-1]
+            for name in [*sorted(p.name for p in stage.iterdir() if p.name != results), results]:
+                if (stage / name).exists():
+                    os.replace(stage / name, self.path / name)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
 
 
 def _check_writable(folder: Path) -> None:
@@ -145,6 +166,10 @@ def _refuse_held(folder: Path, outputs: Sequence[str], overwrite: bool) -> None:
 
 def _clean_stale_temporaries(folder: Path) -> list[str]:
     removed = []
+    for p in folder.glob(f"{STAGING_PREFIX}*.tmp"):  # the staged outputs of a run killed while writing them
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p.name)
     for p in folder.glob(".*.tmp"):
         if p.is_file():
             p.unlink(missing_ok=True)

@@ -220,38 +220,59 @@ def test_a_folder_holding_the_other_tools_results_is_refused_even_with_overwrite
         pass
 
 
-def test_a_rerun_failing_on_a_full_disk_leaves_no_old_results_beside_new_data(
-    finished_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize("stop", ["full_disk", "sigterm"])
+def test_a_rerun_failing_or_stopped_while_writing_keeps_the_old_results_as_they_were(
+    finished_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stop: str
 ) -> None:
+    """The previous outputs were removed before the new ones were written (the recording takes seconds): a rerun
+    with overwrite=true stopped then, or failing on a full disk, left neither the old results nor new ones. The
+    new outputs are now written into a staging folder and replace the old ones only once all are written."""
     out = tmp_path / "rerun"
     out.mkdir()
-    for name in ("results.json", "data.csv"):
-        (out / name).write_bytes((finished_run / name).read_bytes())
+    old = {name: (finished_run / name).read_bytes() for name in ("results.json", "data.csv")}
+    for name, data in old.items():
+        (out / name).write_bytes(data)
     import harness.run as run_module
 
-    def full_disk(path: Path, payload: dict) -> None:
+    def fail(path: Path, payload: dict) -> None:
+        if stop == "sigterm":
+            raise SystemExit(143)  # what `terminate_as_exit` makes of SIGTERM
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(run_module, "write_json", full_disk)
-    with pytest.raises(OSError, match="No space left"):
+    monkeypatch.setattr(run_module, "write_json", fail)
+    with pytest.raises(OSError if stop == "full_disk" else SystemExit):
         run(compose_config(["record=none", "system=pendulum", "seed=5", "overwrite=true"]), output_dir=out)
-    assert not (out / "results.json").exists()  # no stale results beside the new data.csv
-    assert not list(out.glob(".*.tmp"))
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == old  # nothing staged or half-written is left
 
 
 def test_results_json_is_published_last(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every output is written into a staging folder first, results.json last; none is in the run folder before
+    all are written; then they are renamed into place, results.json last."""
     import harness.run as run_module
+    import harness.rundir as rundir_module
 
-    seen: list[set[str]] = []
+    seen: list[tuple[set[str], set[str]]] = []
     real = run_module.write_json
 
     def spy(path: Path, payload: dict) -> None:
-        seen.append({p.name for p in tmp_path.iterdir()})
+        seen.append(({p.name for p in path.parent.iterdir()}, {p.name for p in tmp_path.iterdir()}))
         real(path, payload)
 
+    published: list[str] = []
+    real_replace = rundir_module.os.replace
+
+    def replace(src: Path, dst: Path) -> None:  # (os.replace itself: every atomic write's too)
+        if Path(src).parent.name.startswith(".staged.") and not Path(src).name.startswith("."):
+            published.append(Path(dst).name)
+        real_replace(src, dst)
+
     monkeypatch.setattr(run_module, "write_json", spy)
+    monkeypatch.setattr(rundir_module.os, "replace", replace)
     run(compose_config(["system=pendulum"]), output_dir=tmp_path)
-    assert seen == [{"data.csv", "recording.rrd", LOCK_NAME}]
+    assert len(seen) == 1 and seen[0][0] == {"data.csv", "recording.rrd"}
+    assert {n for n in seen[0][1] if not n.startswith(".staged.")} == {LOCK_NAME}
+    assert published == ["data.csv", "recording.rrd", "results.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv", "recording.rrd", "results.json"]
 
 
 # 3. sweeps -----------------------------------------------------------------------------------------------------
@@ -869,3 +890,20 @@ def test_a_whole_diagnosis_of_a_3m_row_file_stays_within_twice_the_file(tmp_path
     payload = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert payload["reduced"][str(path)]["factor"] > 1
     assert "every" in err and "states at the full rate" in err  # progress names the thinning
+
+
+def test_a_run_after_a_failed_one_in_the_same_folder_says_in_the_log_that_it_finished(tmp_path: Path) -> None:
+    """The folder's log is appended to, and a good run wrote nothing there: after a failed run and a good one in
+    the same folder the log read as the failure, beside the new results."""
+    broken = tmp_path / "broken.xml"
+    broken.write_text("<mujoco><bad")
+    out = tmp_path / "run"
+    proc = _cli(f"system.mjcf={broken}", "record=none", f"hydra.run.dir={out}")
+    _one_line_error(proc, "broken.xml", "MuJoCo cannot load it")
+    assert (out / "failure.json").is_file()
+    proc = _cli("system=pendulum", "record=none", f"hydra.run.dir={out}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = (out / "sysid-run.log").read_text().strip().splitlines()
+    assert "ModelError" in "".join(lines) and not (out / "failure.json").exists()
+    assert "sysid-run started (pid " in lines[-2]
+    assert lines[-1].endswith(f"sysid-run finished: outputs in {out}")
