@@ -96,7 +96,13 @@ def split_train_validation(
                     f"validation file {name!r} is not among the files read: {given}; name one of them "
                     "(data.validation=<file>), or data.validation=null to hold out the last files"
                 )
-            held.update(hits)
+            exact = [i for i in hits if datasets[i].source == str(name)]
+            if len(hits) > 1 and not exact:
+                raise ValueError(
+                    f"validation file {name!r} names {len(hits)} of the files read "
+                    f"({', '.join(datasets[i].source for i in hits)}): give the full path of the one to hold out"
+                )
+            held.update(exact or hits)
         if len(held) == len(datasets):
             raise ValueError("every file is held out for validation: none is left to fit on")
     train = tuple(d for i, d in enumerate(datasets) if i not in held)

@@ -538,6 +538,16 @@ def test_split_by_file_and_by_time_block(tmp_path: Path, plant: Plant) -> None:
     # remedy are named (it said "set validation_fraction", which cannot help)
     with pytest.raises(ValueError, match=r"validation names \['run2.csv'\] but only one file was read \(run0.csv\)"):
         split_train_validation(datasets[:1], validation=["run2.csv"])
+    # two folders' files of one name: the name alone is refused as naming both (it said "every file is held
+    # out for validation"), the full path holds out the one it names
+    for sub in ("d1", "d2"):
+        (tmp_path / sub).mkdir()
+    files = [write(tmp_path / sub / "x.csv", table(amplitude=(a, 0.8))) for sub, a in (("d1", 0.6), ("d2", 0.7))]
+    twins = read_many(files, plant)
+    with pytest.raises(ValueError, match=r"'x.csv' names 2 of the files read \(.*d1/x.csv, .*d2/x.csv\): give"):
+        split_train_validation(twins, validation=["x.csv"])
+    one = split_train_validation(twins, validation=[str(tmp_path / "d2" / "x.csv")])
+    assert [d.source for d in one.validation] == [str(tmp_path / "d2" / "x.csv")]
     (train,), (val,) = block.train, block.validation
     assert (train.n_samples, val.n_samples) == (750, 250) and train.time[-1] < val.time[0]
     assert block.describe()["validation"][0]["n_samples"] == 250
