@@ -128,7 +128,7 @@ def test_the_final_fit_weighs_each_joint_by_what_is_left_on_it() -> None:
     )
     floor_weights = np.array([1e4, 1.0])  # the floor says joint 0 is the quiet one
     plant = load_plant("two_link")
-    _, fit, _ = _final_fit(plant, [], X, s, floor_weights, n_nuisance=1)  # type: ignore[arg-type]
+    _, fit, _, _ = _final_fit(plant, [], X, s, floor_weights, n_nuisance=1)  # type: ignore[arg-type]
     naive = float(np.sum(floor_weights * x * residual) / np.sum(floor_weights * x * x))
     assert abs(naive - theta) > 0.05  # the floor-weighted estimate is pulled by joint 0's error
     assert abs(float(fit.coef[0]) - theta) < 0.01

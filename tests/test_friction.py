@@ -509,23 +509,14 @@ def test_mujocos_own_friction_shape_is_written_as_fitted(tmp_path: Path, arm: st
     assert ext.friction_speed[j] == pytest.approx(unit[j] * scale)
 
 
-def test_the_soft_friction_change_is_read_on_its_own_joints_rows() -> None:
-    """`_soft_friction_change` fits a joint's residual on its own used rows: the rows another joint leaves out
-    (held at its stop, at rest) are no business of this one. It read the columns through the first joint's mask,
-    which the analysis band then spreads: 0.5 N m came out 0.582 on a UR5e with every 7th row of joint 0 left out
-    (0.597 here); now within 1e-5."""
-    from identify.diagnose.candidates import Signals, _soft_friction_change, _SoftFriction
+def _soft_signals(dq: np.ndarray, ddq: np.ndarray, tau: np.ndarray, used: np.ndarray | None = None):  # type: ignore[no-untyped-def]
+    """Signals of a 2-joint record at 500 Hz with the given joint speeds, accelerations and residual torque
+    (`used`: the (row, joint) torques fitted, None for all)."""
+    from identify.diagnose.candidates import Signals
 
-    rng = np.random.default_rng(0)
-    n, t = 3000, np.arange(3000) * 0.002
-    dq = np.column_stack([np.sin(2 * t), np.sin(3 * t) + 0.2 * rng.normal(size=n)])
-    ddq = np.column_stack([2 * np.cos(2 * t), 3 * np.cos(3 * t)])
-    shape = _SoftFriction(0.0, 0.01, 0.0095)
-    tau = np.column_stack([np.zeros(n), shape.torque(dq[:, 1], ddq[:, 1], 0.5) + 0.1 * dq[:, 1]])
-    used = np.ones((n, 2), bool)
-    used[::7, 0] = False
-    s = Signals(
-        time=t,
+    n = len(dq)
+    return Signals(
+        time=np.arange(n) * 0.002,
         q=np.zeros((n, 2)),
         dq=dq,
         ddq=ddq,
@@ -539,4 +530,56 @@ def test_the_soft_friction_change_is_read_on_its_own_joints_rows() -> None:
         used=used,
         band_hz=5.0,
     )
+
+
+def test_the_soft_friction_change_is_read_on_its_own_joints_rows() -> None:
+    """`_soft_friction_change` fits a joint's residual on its own used rows: the rows another joint leaves out
+    (held at its stop, at rest) are no business of this one. It read the columns through the first joint's mask,
+    which the analysis band then spreads: 0.5 N m came out 0.582 on a UR5e with every 7th row of joint 0 left out
+    (0.597 here); now within 1e-5."""
+    from identify.diagnose.candidates import _soft_friction_change, _SoftFriction
+
+    rng = np.random.default_rng(0)
+    n, t = 3000, np.arange(3000) * 0.002
+    dq = np.column_stack([np.sin(2 * t), np.sin(3 * t) + 0.2 * rng.normal(size=n)])
+    ddq = np.column_stack([2 * np.cos(2 * t), 3 * np.cos(3 * t)])
+    shape = _SoftFriction(0.0, 0.01, 0.0095)
+    tau = np.column_stack([np.zeros(n), shape.torque(dq[:, 1], ddq[:, 1], 0.5) + 0.1 * dq[:, 1]])
+    used = np.ones((n, 2), bool)
+    used[::7, 0] = False
+    s = _soft_signals(dq, ddq, tau, used)
     assert _soft_friction_change(s, s.residual, 1, shape) == pytest.approx(0.5, rel=1e-5)
+
+
+@pytest.mark.parametrize("made_at", [0.5, -0.2])
+def test_the_final_fit_makes_mujocos_friction_shape_at_the_value_it_fits(made_at: float) -> None:
+    """MuJoCo's friction ramp widens with Fc, so its column is a secant from the nominal F0 to F0 + dF, made at the
+    dF the training residual gives alone. Fitted beside other effects the change can end elsewhere, and the MJCF
+    written at the fitted value then applied another friction than the one fitted (a secant at +0.5 N m fitted at
+    -0.5: here the fit came out at -0.617 and MuJoCo's friction at it 0.29 N m RMS off the fitted torque; made at
+    -0.2, -0.513 and 0.09 N m). The
+    final fit now makes the column again at the value it fits until they agree: the truth, -0.5, and the column
+    that of MuJoCo's friction there."""
+    from identify.diagnose.candidates import _soft_candidate, _SoftFriction
+    from identify.diagnose.diagnosis import _final_fit
+    from identify.diagnose.select import Step
+
+    plant = load_plant("two_link")
+    shape = _SoftFriction(1.0, 2.0, 0.0095)  # a light joint: the ramp 2 rad/s wide per N m
+    t = np.arange(5000) * 0.002
+    dq = np.column_stack([np.sin(t), 3.0 * np.sin(2.1 * t) + 0.5 * np.sin(5.3 * t)])
+    ddq = np.column_stack([np.cos(t), 6.3 * np.cos(2.1 * t) + 2.65 * np.cos(5.3 * t)])
+    truth = -0.5
+    change = shape.torque(dq[:, 1], ddq[:, 1], shape.nominal + truth) - shape.torque(dq[:, 1], ddq[:, 1], shape.nominal)
+    s = _soft_signals(dq, ddq, np.column_stack([np.zeros(len(t)), change]))
+    cand = _soft_candidate(plant, 1, shape, made_at)
+    steps = [Step(cand, np.array([0]), -1.0, 1.0, 0.5)]
+    X = s.columns(cand)
+    _, fit, left, steps = _final_fit(plant, steps, X, s, np.ones(2))
+    assert fit.coef[0] == pytest.approx(truth, rel=1e-5)
+    assert steps[0].candidate.made_at == pytest.approx(fit.coef[0], rel=1e-5)
+    written = shape.torque(dq[:, 1], ddq[:, 1], shape.nominal + fit.coef[0]) - shape.torque(
+        dq[:, 1], ddq[:, 1], shape.nominal
+    )
+    np.testing.assert_allclose(steps[0].candidate.build(s)[:, 1, 0] * fit.coef[0], written, atol=1e-5)
+    assert np.sqrt(np.mean(left**2)) < 1e-6

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 
 import mujoco
 import numpy as np
@@ -268,6 +269,10 @@ class Candidate:
             speed, a cogging period), "" where there is one.
         note: what the effect is physically and how the calibrated MJCF holds it (for effects MuJoCo has
             no attribute for).
+        made_at: for a column that depends on its own coefficient (the secant of MuJoCo's friction, whose width
+            goes with Fc), the coefficient it was made at; None for every other candidate.
+        remake: with `made_at`, coefficient -> the same candidate with its column made at that coefficient (the
+            final fit iterates it to the value it fits, `diagnosis._final_fit`).
     """
 
     effect: str
@@ -280,6 +285,8 @@ class Candidate:
     bounds: tuple[tuple[float, float], ...] = ()
     note: str = ""
     variant: str = ""
+    made_at: float | None = None
+    remake: Callable[[float], Candidate] | None = None
 
     @property
     def null(self) -> float:
@@ -458,46 +465,52 @@ def _soft_friction(plant: Plant, train: Signals | None) -> list[Candidate]:
     vt = R Fc / B (`dynamics.friction`). It turns over 1 / B (9.5 ms at the defaults) before the joint reverses;
     an ideal sign(dq) leaves that turnover as structure, and an armature takes part of it. The width goes with
     Fc, so the column is the change of that friction from the joint's nominal F0 to F0 + dF per unit dF, at the
-    dF the training residual gives (`_soft_friction_change`); without training signals, none."""
+    dF the training residual gives (`_soft_friction_change`), made again at the dF the final fit gives
+    (`Candidate.remake`); without training signals, none."""
     m = plant.mj_model
     if train is None or not friction_enabled(m):
         return []
     unit_speed, lead = applied_friction_parameters(m, np.ones(plant.nv))
     residual = train.residual  # low-passed on every access: once for every joint
     out = []
-    for j, name in enumerate(plant.joint_names):
+    for j in range(plant.nv):
         if lead[j] <= 0:
             continue
         shape = _SoftFriction(float(plant.frictionloss[j]), float(unit_speed[j]), float(lead[j]))
         change = _soft_friction_change(train, residual, j, shape)
-        if change is None:
-            continue
-
-        def soft(s: Signals, j: int = j, shape: _SoftFriction = shape, change: float = change) -> np.ndarray:
-            return shape.column(s.dq[:, j], s.ddq[:, j], change)
-
-        note = (
-            f"Coulomb friction as MuJoCo applies a joint frictionloss at the joint's own solver parameters: "
-            f"Fc sat((dq + {lead[j]:.3g} ddq) / vt), vt = {unit_speed[j]:.3g} Fc "
-            f"{'rad/s per N m' if plant.hinge[j] else 'm/s per N'} (turning over "
-            f"{1e3 * lead[j]:.3g} ms before the joint reverses); written as the joint's frictionloss, its "
-            "solreffriction and solimpfriction left as they are"
-        )
-        out.append(
-            Candidate(
-                "coulomb_friction",
-                name,
-                "N m",
-                "joint frictionloss (MuJoCo's own constraint)",
-                (f"Fcm{j + 1}",),
-                _own_row(plant.nv, j, soft),
-                _first,
-                ((-shape.nominal, np.inf),),  # the joint's total friction stays >= 0
-                note,
-                SOFT_FRICTION,
-            )
-        )
+        if change is not None:
+            out.append(_soft_candidate(plant, j, shape, change))
     return out
+
+
+def _soft_candidate(plant: Plant, j: int, shape: _SoftFriction, change: float) -> Candidate:
+    """Joint j's Coulomb friction in MuJoCo's own shape (`_soft_friction`), its column the secant from the nominal
+    frictionloss to nominal + `change` [N m]."""
+
+    def soft(s: Signals) -> np.ndarray:
+        return shape.column(s.dq[:, j], s.ddq[:, j], change)
+
+    note = (
+        f"Coulomb friction as MuJoCo applies a joint frictionloss at the joint's own solver parameters: "
+        f"Fc sat((dq + {shape.lead:.3g} ddq) / vt), vt = {shape.unit_speed:.3g} Fc "
+        f"{'rad/s per N m' if plant.hinge[j] else 'm/s per N'} (turning over "
+        f"{1e3 * shape.lead:.3g} ms before the joint reverses); written as the joint's frictionloss, its "
+        "solreffriction and solimpfriction left as they are"
+    )
+    return Candidate(
+        "coulomb_friction",
+        plant.joint_names[j],
+        "N m",
+        "joint frictionloss (MuJoCo's own constraint)",
+        (f"Fcm{j + 1}",),
+        _own_row(plant.nv, j, soft),
+        _first,
+        ((-shape.nominal, np.inf),),  # the joint's total friction stays >= 0
+        note,
+        SOFT_FRICTION,
+        made_at=change,
+        remake=partial(_soft_candidate, plant, j, shape),
+    )
 
 
 @dataclass(frozen=True)

@@ -723,7 +723,9 @@ def diagnose(
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
     z_floor = selection.min_z_records if len(tr) > 1 else selection.min_z  # the most lenient the selection asks
     sliding = _sliding_rows(s_tr, steps, names)
-    X, fit, left_tr = _final_fit(plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None)
+    X, fit, left_tr, steps = _final_fit(
+        plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None
+    )
     lead = _torque_lead(plant, steps, X, s_tr, weights, m, sliding)
     fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
     sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
@@ -1587,8 +1589,8 @@ def _final_fit(
     sliding: np.ndarray | None = None,
     *,
     record_angles: int | None = None,
-) -> tuple[np.ndarray, LinearFit, np.ndarray]:
-    """Joint fit of the chosen columns, with joint offsets and torque gains made exact.
+) -> tuple[np.ndarray, LinearFit, np.ndarray, list[Step]]:
+    """Joint fit of the chosen columns, with joint offsets, torque gains and self-dependent columns made exact.
 
     `sliding`: (N, nv) the (row, joint) torques the fit uses (`_sliding_rows`; None: every used one); the
     columns and the residual returned cover every row. `record_angles`: where the nuisance columns of an angle
@@ -1596,8 +1598,9 @@ def _final_fit(
     ones); None: there are none.
 
     Returns:
-        (the columns, re-made where offsets and gains were iterated; the fit; (N, nv) the residual it leaves,
-        with the nominal torque at the fitted joint offsets, not its first-order expansion).
+        (the columns, re-made where offsets, gains and self-dependent columns were iterated; the fit; (N, nv) the
+        residual it leaves, with the nominal torque at the fitted joint offsets, not its first-order expansion;
+        the steps, each candidate whose column depends on its own value re-made at the value fitted).
 
     The joints are weighted by the variance of what the fit leaves on each (feasible GLS from `weights`,
     re-weighted until the weights settle): on a simulation that is the sensor noise the selection weighs by,
@@ -1611,6 +1614,12 @@ def _final_fit(
     fitted effects.
     At the fixed point measured = gain (nominal(q - offset) + effects) + torque offset holds exactly, as
     in the calibrated model. Every coefficient stays within its candidate's physical range.
+
+    A column made at a value of its own coefficient (`Candidate.made_at`: MuJoCo's friction, whose ramp widens
+    with Fc, as a secant from the nominal Fc) is made again at the value fitted until the two agree (to
+    `_REMAKE_TOL` of the nominal-plus-change): the calibrated MJCF then applies the friction the fit used.
+    Made once from the training residual alone, a change fitted beside other effects could end far from it (a
+    secant at +0.5 N m fitted at -0.5 was 0.24 N m off MuJoCo's friction at the written value).
     """
     lo, hi = _step_bounds(steps, n_nuisance)
     residual = s.residual  # low-passed record by record on every access: once
@@ -1629,6 +1638,8 @@ def _final_fit(
         if done:
             break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
+    fixed_weights = weights
+    X, fit, steps = _remade_at_fit(s, steps, X, fit, start, lambda X_: solve(X_, residual, fixed_weights, lo, hi))
     records = np.unique(s.record)
     # (column, joint, record index or None for an offset of every record)
     offsets: list[tuple[int, int, int | None]] = [
@@ -1640,7 +1651,7 @@ def _final_fit(
         offsets += [(record_angles + r * plant.nv + j, j, r) for r in range(len(records)) for j in range(plant.nv)]
     gains = [int(start[i]) for i, st in enumerate(steps) if st.candidate.effect == "torque_gain"]
     if not offsets and not gains:
-        return X, fit, residual - np.einsum("knp,p->kn", X, fit.coef)
+        return X, fit, residual - np.einsum("knp,p->kn", X, fit.coef), steps
     X, nominal = X.copy(), s.tau_nominal
     shift = np.zeros((len(records) + 1, plant.nv))  # the offsets found so far: every record's, then each record's
     row_record = 1 + np.searchsorted(records, s.record)
@@ -1674,7 +1685,45 @@ def _final_fit(
     coef = fit.coef.copy()
     for c, j, r in offsets:
         coef[c] += shift[0 if r is None else 1 + r, j]
-    return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time), left
+    return X, LinearFit(coef, fit.cov, fit.sigma, fit.at_bound, fit.correlation_time), left, steps
+
+
+_REMAKE_TOL = 1e-6  # relative agreement of a self-dependent column's value and the value it was made at
+_REMAKE_ITERATIONS = 20
+
+
+def _remade_at_fit(
+    s: Signals,
+    steps: list[Step],
+    X: np.ndarray,
+    fit: LinearFit,
+    start: np.ndarray,
+    solve: Callable[[np.ndarray], LinearFit],
+) -> tuple[np.ndarray, LinearFit, list[Step]]:
+    """The columns of candidates made at a value of their own coefficient (`Candidate.made_at`) made again at
+    the value fitted, and refitted (`solve`: columns -> fit), until the two agree (`_final_fit`). Returns the
+    columns, the fit and the steps with those candidates re-made."""
+    own = [i for i, st in enumerate(steps) if st.candidate.remake is not None]
+    if not own:
+        return X, fit, steps
+    X, steps = X.copy(), list(steps)
+    for _ in range(_REMAKE_ITERATIONS):
+        moved = False
+        for i in own:
+            cand, col = steps[i].candidate, int(start[i])
+            value, made_at = float(fit.coef[col]), cand.made_at
+            assert cand.remake is not None and made_at is not None and len(steps[i].kept) == 1
+            scale = max(abs(made_at), abs(value), 1e-9)
+            if abs(value - made_at) <= _REMAKE_TOL * scale or abs(value) < 1e-9:
+                continue  # agreed, or no change (the secant's limit: the column it has is as good)
+            cand = cand.remake(value)
+            steps[i] = dataclasses.replace(steps[i], candidate=cand)
+            X[:, :, col] = s.columns(cand)[:, :, 0]
+            moved = True
+        if not moved:
+            break
+        fit = solve(X)
+    return X, fit, steps
 
 
 LEAD_Z = 4.0  # a torque lead beside the effects named is pointed out where it is this many std from zero ...
