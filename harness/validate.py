@@ -206,8 +206,8 @@ def check_driven(plant: Plant) -> None:
     if not any(bool(a) for a in plant.actuated):
         raise ConfigError(
             f"{plant.path}: no joint of {plant.name} is driven (the model has no <actuator> on its joints), so "
-            "nothing can excite it: add a motor per joint, e.g. <actuator><motor joint='j1' ctrlrange='-5 5'/>"
-            "</actuator>"
+            f"nothing can excite it: add a motor per joint, e.g. <actuator><motor joint='{plant.joint_names[0]}' "
+            "ctrlrange='-5 5'/></actuator>"
         )
     for a in plant.actuation.actuators:
         if a.torque_limit > 0:
