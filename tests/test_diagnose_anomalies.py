@@ -355,6 +355,7 @@ def test_every_shared_log_passes_the_torque_column_check_and_a_flipped_or_swappe
         with pytest.raises(DataError, match="flipped") as err:
             check_torque_columns(plant, *_shared_record(path, lambda tau: -tau))
         every += "every torque column (tau_shoulder (the file's tau_meas1), tau_elbow" in str(err.value)
+        assert str(err.value).startswith(f"{path}: ")  # the full path: two folders may hold files of one name
     assert every == 7  # 05, 143704 and 144115: the shoulder named first (negating it alone does about as well)
 
 

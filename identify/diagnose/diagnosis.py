@@ -370,7 +370,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
     ok = (na > 0) & (nb > 0)
     r = np.where(np.outer(ok, ok), (b.T @ a) / np.maximum(np.outer(nb, na), 1e-300), 0.0)  # r[i, j]: tau_i, nominal_j
     names = plant.joint_names
-    src = Path(data.source).name if data.source else "the record"
+    src = data.source or "the record"  # the full path: two folders may hold files of one name
 
     def column(j: int) -> str:
         return _file_column(data, f"tau_{names[j]}")
