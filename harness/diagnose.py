@@ -573,7 +573,8 @@ def _summary(payload: dict[str, Any]) -> str:
             for c in f.get("confounded_with", [])
         )
         held = f" ({', '.join(f['held_nominal'])} nominal)" if f.get("held_nominal") else ""
-        lines.append(f"  {f['effect']:17s} {where:10s} {f['value']:.5g}{std} {f['unit']}{bound}{alts}{held}")
+        value = "-" if f["value"] is None else f"{f['value']:.5g}"  # None: not finite (JSON has no inf)
+        lines.append(f"  {f['effect']:17s} {where:10s} {value}{std} {f['unit']}{bound}{alts}{held}")
     if "final_fit" in payload:
         ff = payload["final_fit"]
         names = ", ".join(f["name"] for f in ff["findings"]) or "none"

@@ -369,8 +369,23 @@ def test_a_finding_the_final_fit_leaves_at_its_value_of_no_effect_is_not_named()
     gain_at_bound = dataclasses.replace(_finding(), effect="torque_gain", value=1.0, at_bound="upper")
     off_null_at_bound = dataclasses.replace(_finding(), value=0.1, at_bound="lower")
     zero_inside = dataclasses.replace(_finding(), value=0.0)
-    findings = [zero_at_bound, gain_at_bound, off_null_at_bound, zero_inside]
-    assert _pinned_at_null(findings, [0.0, 1.0, 0.0, 0.0]) == [zero_at_bound, gain_at_bound]
+    # a joint elasticity's compliance 0 at its bound: a stiffness of inf, whose value cannot be stated (it was
+    # named, value None, and the run's summary failed on formatting it); a compliance off 0 at a bound stays
+    rigid = dataclasses.replace(
+        _finding(),
+        effect="joint_elasticity",
+        value=float("inf"),
+        at_bound="lower",
+        parameters=[{"name": "c2", "value": 0.0, "std": None, "at_bound": "lower"}],
+    )
+    compliant = dataclasses.replace(
+        rigid,
+        value=50.0,
+        at_bound="upper",
+        parameters=[{"name": "c2", "value": 0.02, "std": None, "at_bound": "upper"}],
+    )
+    findings = [zero_at_bound, gain_at_bound, off_null_at_bound, zero_inside, rigid, compliant]
+    assert _pinned_at_null(findings, [0.0, 1.0, 0.0, 0.0, 0.0, 0.0]) == [zero_at_bound, gain_at_bound, rigid]
 
 
 def test_a_torque_held_constant_is_not_called_saturated() -> None:

@@ -1829,11 +1829,18 @@ def _rigid_refit(
 
 
 def _pinned_at_null(findings: list[Finding], nulls: list[float]) -> list[Finding]:
-    """The findings whose headline ended on a bound that is its value of no effect (`Candidate.null`)."""
+    """The findings whose headline ended on a bound that is its value of no effect (`Candidate.null`), read on
+    the value or on its coefficient (a joint elasticity's compliance 0 is a stiffness of inf: its value cannot
+    be stated, and it had been named, value None, credited with a held-out gain its columns never gave)."""
     return [
         f
         for f, null in zip(findings, nulls, strict=True)
-        if f.at_bound is not None and abs(float(f.value) - null) <= 1e-12
+        if f.at_bound is not None
+        and (
+            abs(float(f.value) - null) <= 1e-12
+            or not np.isfinite(f.value)
+            or (f.parameters and abs(float(f.parameters[0]["value"])) <= 1e-12)
+        )
     ]
 
 
