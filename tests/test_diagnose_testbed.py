@@ -308,6 +308,14 @@ def test_a_large_joint_offset_is_not_mistaken_for_changing_torque_zeros() -> Non
     assert ("joint_offset", "shoulder") in _names(dg)
 
 
+def test_an_elbow_encoder_offset_beyond_a_resting_pose_is_named_beside_the_rigid_body_it_looks_like() -> None:
+    """A 0.3 rad elbow encoder offset turns link 2's first moments as a rigid-body change would: the two are one
+    finding. With the offset's range at 0.2 rad the offset could not be fitted, and the rigid-body change was
+    named alone and `explained` (on another generator: link 2's centre of mass 8 cm sideways on a 30 mm link)."""
+    _, dg = diagnose_case("two_link", [Injected("joint_offset", "elbow", 0.3)], seed=1)
+    assert ("joint_offset", "elbow") in _names(dg), [f.name for f in dg.findings]
+
+
 ANGLE_ZEROS = {"shoulder": (0.15, -0.25, 0.1), "elbow": (-0.15, 0.1, 0.12)}  # per training record [rad]
 
 

@@ -45,7 +45,6 @@ from identify.diagnose.calibrate import (
     predict_measured_torque,
 )
 from identify.diagnose.candidates import (
-    MAX_JOINT_OFFSET,
     SOFT_FRICTION,
     Candidate,
     Signals,
@@ -96,6 +95,11 @@ DEFAULT_EFFECTS = (
     "torque_offset",
     "viscous_friction",
 )
+
+
+# how far [rad] an encoder zeroed where the arm rested (held by its friction) is expected to be from the
+# model's zero: a record's angle zero beyond it is pointed out as a likely convention error
+RESTING_ZERO = 0.2
 
 
 @dataclass(frozen=True)
@@ -952,10 +956,10 @@ def diagnose(
         ]
         + [
             f"{names[j]}: the angle zero of {Path(tr[i].data.source).name} is {angles_by_record[i, j]:+.3g} "
-            f"{plant.position_units[j]} from the model's, beyond the {MAX_JOINT_OFFSET:g} {plant.position_units[j]} "
+            f"{plant.position_units[j]} from the model's, beyond the {RESTING_ZERO:g} {plant.position_units[j]} "
             "an encoder zeroed where the arm rested is expected to be: check the log's angle convention (its zero "
             "pose, its sign, its unit)"
-            for i, j in zip(*np.nonzero(np.abs(np.nan_to_num(angles_by_record)) > MAX_JOINT_OFFSET), strict=True)
+            for i, j in zip(*np.nonzero(np.abs(np.nan_to_num(angles_by_record)) > RESTING_ZERO), strict=True)
         ]
         + [
             f"{f.name}: |value - null| / std is {z:.2f} in the joint fit of every finding, below "
