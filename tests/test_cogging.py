@@ -73,3 +73,15 @@ def test_a_joint_that_spans_no_period_has_no_cogging_candidate() -> None:
     assert cogging_harmonic(s, 1) is None
     plant = load_plant("two_link")
     assert [c for c in candidates(plant, ["cogging"], np.random.default_rng(0), s) if c.effect == "cogging"] == []
+
+
+def test_a_period_shorter_than_the_scan_is_not_named_at_the_scans_end() -> None:
+    """A 42-cycle ripple (a 7-cycle motor ripple through a 6:1 gear) lies beyond the shortest period scanned
+    (n = 40): the best harmonic is the scan's end, and a candidate there named n = 40 with an amplitude 24 % low
+    and a std that knew nothing of the period. No candidate is made; a period inside the scan still is."""
+    s = _signals(1.0, n_true=42.0)
+    found = position_harmonic(s, 0, s.residual[:, 0])
+    assert found is not None and found[0] == COGGING_HARMONICS[-1]
+    assert cogging_harmonic(s, 0) is None
+    n, _ = cogging_harmonic(_signals(1.0, n_true=37.0), 0)  # type: ignore[misc]
+    assert n == 37.0

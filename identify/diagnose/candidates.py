@@ -693,14 +693,16 @@ def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, 
 def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
     """The position-periodic torque that best explains joint j's training residual (`position_harmonic`):
     (harmonic n [cycles per revolution], amplitude), or None where the joint's motion spans no period, or where
-    the best is the longest period the scan allows (of several): the scan cut it there, the torque's period may
-    be longer than the motion shows, and a candidate at the cut would name a wrong period with a biased amplitude
-    (a UR5e wrist's 6-cycle cogging over 0.85 rad of motion came out as n = 7.5 at 0.21 N m for 0.3)."""
+    the best is the longest or the shortest period the scan allows (of several): the scan cut it there, the
+    torque's period may lie beyond, and a candidate at the cut would name a wrong period with a biased amplitude
+    (a UR5e wrist's 6-cycle cogging over 0.85 rad of motion came out as n = 7.5 at 0.21 N m for 0.3; on another
+    generator a 42-cycle ripple as n = 40 at 0.0228 +- 0.0009 N m for 0.03). The residual's signature still
+    reports that harmonic."""
     found = position_harmonic(s, j, s.residual[:, j])
     if found is None:
         return None
     shown = _scanned_harmonics(s.q[:, j])
-    return None if shown.size > 1 and found[0] == shown[0] else (found[0], found[1])
+    return None if shown.size > 1 and found[0] in (shown[0], shown[-1]) else (found[0], found[1])
 
 
 def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:
