@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from identify.diagnose.candidates import Signals, position_harmonic
+from identify.diagnose.candidates import COGGING_HARMONICS, Signals, position_harmonic
 from identify.diagnose.statistics import correlation_time
 
 __all__ = [
@@ -317,7 +317,10 @@ def describe_signature(remaining: dict[str, Any]) -> str:
             )
         periodic = sig["position_periodic"]
         if periodic["share"] >= 0.3:
-            notes.append(f"{periodic['share']:.0%} of it periodic in position ({periodic['period_rad']:.3g} rad)")
+            # the shortest period scanned: the torque's own may be shorter still (a 42-cycle ripple reads as 40)
+            shortest = periodic["cycles_per_revolution"] >= COGGING_HARMONICS[-1]
+            edge = " or shorter: the shortest scanned" if shortest else ""
+            notes.append(f"{periodic['share']:.0%} of it periodic in position ({periodic['period_rad']:.3g} rad{edge})")
         finite = {k: v for k, v in sig["correlation"].items() if np.isfinite(v)}
         if not notes and finite:
             probe = max(finite, key=lambda k: abs(finite[k]))
