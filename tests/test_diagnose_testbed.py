@@ -855,6 +855,10 @@ def test_a_torque_lead_left_undeclared_is_pointed_out_with_its_size() -> None:
         else:
             assert abs(lead["delay_s"] + truth) < 3 * lead["std_s"], lead
             assert len(notes) == 1 and "data.tau_lead_s" in notes[0] and "(now 0 s)" in notes[0], dg.notes
+            assert notes[0].endswith(
+                "may stand in for it (a 2 ms lead on another generator's data was named as "
+                "backlash and a Stribeck friction): declare it and diagnose again"
+            )
 
 
 @pytest.mark.skipif(not (SHARED_ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")

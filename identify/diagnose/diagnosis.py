@@ -1742,7 +1742,9 @@ def _lead_note(lead: tuple[float, float] | None, dt: float, declared: float) -> 
         f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
         f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named): a torque held over each sample and logged "
         "at its start acts centred half a sample after its row, which data.tau_lead_s declares "
-        f"(now {declared:g} s); a lead left undeclared is fitted as armature and a negative change of damping"
+        f"(now {declared:g} s); a lead left undeclared is fitted as armature and a negative change of damping, "
+        "and the effects named beside it may stand in for it (a 2 ms lead on another generator's data was named as "
+        "backlash and a Stribeck friction): declare it and diagnose again"
     ]
 
 
