@@ -551,16 +551,18 @@ def test_the_soft_friction_change_is_read_on_its_own_joints_rows() -> None:
     assert _soft_friction_change(s, s.residual, 1, shape) == pytest.approx(0.5, rel=1e-5)
 
 
-@pytest.mark.parametrize("made_at", [0.5, -0.2])
-def test_the_final_fit_makes_mujocos_friction_shape_at_the_value_it_fits(made_at: float) -> None:
+@pytest.mark.parametrize(("made_at", "gain"), [(0.5, None), (-0.2, None), (0.5, 1.25)])
+def test_the_final_fit_makes_mujocos_friction_shape_at_the_value_it_fits(made_at: float, gain: float | None) -> None:
     """MuJoCo's friction ramp widens with Fc, so its column is a secant from the nominal F0 to F0 + dF, made at the
     dF the training residual gives alone. Fitted beside other effects the change can end elsewhere, and the MJCF
     written at the fitted value then applied another friction than the one fitted (a secant at +0.5 N m fitted at
     -0.5: here the fit came out at -0.617 and MuJoCo's friction at it 0.29 N m RMS off the fitted torque; made at
-    -0.2, -0.513 and 0.09 N m). The
-    final fit now makes the column again at the value it fits until they agree: the truth, -0.5, and the column
-    that of MuJoCo's friction there."""
-    from identify.diagnose.candidates import _soft_candidate, _SoftFriction
+    -0.2, -0.513 and 0.09 N m). The final fit now makes the column again at the value it fits until they agree:
+    the truth, -0.5, and the column that of MuJoCo's friction there; also where a torque gain is fitted beside it,
+    whose own iteration had moved the value off the column again (-0.4917 for a column made at -0.6145)."""
+    import dataclasses
+
+    from identify.diagnose.candidates import _joint_effects, _soft_candidate, _SoftFriction
     from identify.diagnose.diagnosis import _final_fit
     from identify.diagnose.select import Step
 
@@ -571,12 +573,20 @@ def test_the_final_fit_makes_mujocos_friction_shape_at_the_value_it_fits(made_at
     ddq = np.column_stack([np.cos(t), 6.3 * np.cos(2.1 * t) + 2.65 * np.cos(5.3 * t)])
     truth = -0.5
     change = shape.torque(dq[:, 1], ddq[:, 1], shape.nominal + truth) - shape.torque(dq[:, 1], ddq[:, 1], shape.nominal)
-    s = _soft_signals(dq, ddq, np.column_stack([np.zeros(len(t)), change]))
+    nominal = np.column_stack([np.zeros(len(t)), 3.0 * np.sin(0.7 * t) + 1.0])
+    measured = (gain or 1.0) * (nominal[:, 1] + change)
+    s = dataclasses.replace(_soft_signals(dq, ddq, np.column_stack([np.zeros(len(t)), measured])), tau_nominal=nominal)
     cand = _soft_candidate(plant, 1, shape, made_at)
     steps = [Step(cand, np.array([0]), -1.0, 1.0, 0.5)]
     X = s.columns(cand)
+    if gain is not None:
+        (gains,) = [c for c in _joint_effects(plant) if c.effect == "torque_gain" and c.target == "elbow"]
+        steps.append(Step(gains, np.array([0]), -1.0, 1.0, 0.5))
+        X = np.concatenate([X, s.columns(gains)], axis=2)
     _, fit, left, steps = _final_fit(plant, steps, X, s, np.ones(2))
     assert fit.coef[0] == pytest.approx(truth, rel=1e-5)
+    if gain is not None:
+        assert 1.0 + fit.coef[1] == pytest.approx(gain, rel=1e-6)
     assert steps[0].candidate.made_at == pytest.approx(fit.coef[0], rel=1e-5)
     written = shape.torque(dq[:, 1], ddq[:, 1], shape.nominal + fit.coef[0]) - shape.torque(
         dq[:, 1], ddq[:, 1], shape.nominal

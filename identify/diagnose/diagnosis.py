@@ -1642,8 +1642,11 @@ def _final_fit(
         if done:
             break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
-    fixed_weights = weights
-    X, fit, steps = _remade_at_fit(s, steps, X, fit, start, lambda X_: solve(X_, residual, fixed_weights, lo, hi))
+    X, steps = X.copy(), list(steps)  # self-dependent columns are made again in place (`_remade_at_fit`)
+    for _ in range(_REMAKE_ITERATIONS):
+        if not _remade_at_fit(s, steps, X, fit.coef, start):
+            break
+        fit = solve(X, residual, weights, lo, hi)
     records = np.unique(s.record)
     # (column, joint, record index or None for an offset of every record)
     offsets: list[tuple[int, int, int | None]] = [
@@ -1683,7 +1686,9 @@ def _final_fit(
             lo_it[c], hi_it[c] = lo[c] - done, hi[c] - done
         measured = s.in_band(s.tau - nominal)
         fit = solve(X, measured, weights, lo_it, hi_it)
-        if np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
+        # a self-dependent column follows its value here too (a gain or an offset moves it after the pass above)
+        remade = _remade_at_fit(s, steps, X, fit.coef, start)
+        if not remade and np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
     left = measured - np.einsum("knp,p->kn", X, fit.coef)
     coef = fit.coef.copy()
@@ -1696,38 +1701,25 @@ _REMAKE_TOL = 1e-6  # relative agreement of a self-dependent column's value and 
 _REMAKE_ITERATIONS = 20
 
 
-def _remade_at_fit(
-    s: Signals,
-    steps: list[Step],
-    X: np.ndarray,
-    fit: LinearFit,
-    start: np.ndarray,
-    solve: Callable[[np.ndarray], LinearFit],
-) -> tuple[np.ndarray, LinearFit, list[Step]]:
-    """The columns of candidates made at a value of their own coefficient (`Candidate.made_at`) made again at
-    the value fitted, and refitted (`solve`: columns -> fit), until the two agree (`_final_fit`). Returns the
-    columns, the fit and the steps with those candidates re-made."""
-    own = [i for i, st in enumerate(steps) if st.candidate.remake is not None]
-    if not own:
-        return X, fit, steps
-    X, steps = X.copy(), list(steps)
-    for _ in range(_REMAKE_ITERATIONS):
-        moved = False
-        for i in own:
-            cand, col = steps[i].candidate, int(start[i])
-            value, made_at = float(fit.coef[col]), cand.made_at
-            assert cand.remake is not None and made_at is not None and len(steps[i].kept) == 1
-            scale = max(abs(made_at), abs(value), 1e-9)
-            if abs(value - made_at) <= _REMAKE_TOL * scale or abs(value) < 1e-9:
-                continue  # agreed, or no change (the secant's limit: the column it has is as good)
-            cand = cand.remake(value)
-            steps[i] = dataclasses.replace(steps[i], candidate=cand)
-            X[:, :, col] = s.columns(cand)[:, :, 0]
-            moved = True
-        if not moved:
-            break
-        fit = solve(X)
-    return X, fit, steps
+def _remade_at_fit(s: Signals, steps: list[Step], X: np.ndarray, coef: np.ndarray, start: np.ndarray) -> bool:
+    """The columns of candidates made at a value of their own coefficient (`Candidate.made_at`) made again, in
+    place in `X` (N, nv, p) and `steps`, at the value `coef` gives them where the two differ (`_REMAKE_TOL`);
+    `start`: each step's first column. Returns whether any was made again (the caller refits, `_final_fit`)."""
+    moved = False
+    for i, st in enumerate(steps):
+        cand = st.candidate
+        if cand.remake is None or cand.made_at is None:
+            continue
+        assert len(st.kept) == 1, "a self-dependent candidate has one column"
+        col, value = int(start[i]), float(coef[int(start[i])])
+        scale = max(abs(cand.made_at), abs(value), 1e-9)
+        if abs(value - cand.made_at) <= _REMAKE_TOL * scale or abs(value) < 1e-9:
+            continue  # agreed, or no change (the secant's limit: the column it has is as good)
+        cand = cand.remake(value)
+        steps[i] = dataclasses.replace(st, candidate=cand)
+        X[:, :, col] = s.columns(cand)[:, :, 0]
+        moved = True
+    return moved
 
 
 LEAD_Z = 4.0  # a torque lead beside the effects named is pointed out where it is this many std from zero ...
