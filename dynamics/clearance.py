@@ -5,9 +5,10 @@ where it has some, and for every moving body without any, a capsule from its fra
 own centre of mass for a leaf) of radius `FALLBACK_RADIUS_M`. Distances: MuJoCo's `mj_geomDistance` between
 collision geoms, a closed form between capsules. Floors: the model's collision planes fixed to the world (a floor,
 a table top, a wall: each an infinite plane, as MuJoCo collides with it), or the world plane z = 0 where it has
-none; every moving shape is kept above each. Obstacles: the other collision geoms fixed to the world (a table, a
-pedestal, a wall box), each against the moving bodies' collision geoms (a body that has none, only its fallback
-capsule, is not checked against them).
+none; every moving shape is kept above each that MuJoCo's contact filter would check it against (as for pairs,
+below; a fallback capsule against every plane that collides with anything). Obstacles: the other collision geoms
+fixed to the world (a table, a pedestal, a wall box), each against the moving bodies' collision geoms (a body that
+has none, only its fallback capsule, is not checked against them).
 
 Pairs are those MuJoCo's contact filter would check: not shapes on the same or adjacent bodies (parent and child),
 not pairs of bodies a `<contact><exclude>` names, not geoms whose contype / conaffinity bitmasks never meet; a
@@ -46,6 +47,8 @@ class _Plane:
 
     point: np.ndarray
     normal: np.ndarray
+    geom: int = -1  # the model's plane geom (-1: the default floor z = 0)
+    body: int = 0
 
 
 _FLOOR = _Plane(np.zeros(3), np.array([0.0, 0.0, 1.0]))  # the world plane z = 0 where the model has no floor
@@ -129,8 +132,30 @@ class Clearance:
                     continue
                 candidates.append((i, j))
         self.pairs = candidates
+
+        def on_floor(shape: _Shape, plane: _Plane) -> bool:
+            """Whether MuJoCo's contact filter would check a moving shape against a floor plane: the default floor
+            always; a model's plane as a geom pair (a `<pair>` always, else not excluded and the bitmasks meeting;
+            a plane in `<pair>`s only, against its paired geoms alone; a fallback capsule against a plane that
+            collides with anything)."""
+            if plane.geom < 0:
+                return True
+            if shape.geom >= 0 and frozenset((shape.geom, plane.geom)) in explicit:
+                return True
+            if (shape.body, plane.body) in excluded or (plane.body, shape.body) in excluded:
+                return False
+            if shape.geom < 0:
+                return bool(m.geom_contype[plane.geom] or m.geom_conaffinity[plane.geom])
+            return not masked(shape.geom, plane.geom)
+
         # (shape, plane) floor checks
-        self.floor = [(k, f) for k, shape in enumerate(shapes) if not shape.fixed for f in range(len(planes))]
+        self.floor = [
+            (k, f)
+            for k, shape in enumerate(shapes)
+            if not shape.fixed
+            for f, plane in enumerate(planes)
+            if on_floor(shape, plane)
+        ]
         pair_d, floor_d = self._distances(np.atleast_2d(q_ref))
         self.pairs = [p for p, d in zip(self.pairs, pair_d.min(axis=0), strict=True) if d > clearance_m]
         self.floor = [k for k, d in zip(self.floor, floor_d.min(axis=0), strict=True) if d > clearance_m]
@@ -296,9 +321,10 @@ def clearance_for(plant: Plant, clearance_m: float, q_ref: np.ndarray) -> Cleara
     floors = [g for g in colliding if m.geom_bodyid[g] not in moving and int(m.geom_type[g]) == plane]
     data = mujoco.MjData(m)
     mujoco.mj_kinematics(m, data)  # where the world's planes are (they do not move with q)
-    planes = tuple(_Plane(data.geom_xpos[g].copy(), data.geom_xmat[g].reshape(3, 3)[:, 2].copy()) for g in floors) or (
-        _FLOOR,
-    )
+    planes = tuple(
+        _Plane(data.geom_xpos[g].copy(), data.geom_xmat[g].reshape(3, 3)[:, 2].copy(), g, int(m.geom_bodyid[g]))
+        for g in floors
+    ) or (_FLOOR,)
     for b in sorted(moving - covered):
         children = [c for c in range(1, m.nbody) if m.body_parentid[c] == b]
         targets = [m.body_pos[c].copy() for c in children] or [m.body_ipos[b].copy()]

@@ -247,6 +247,31 @@ def test_the_models_own_floor_plane_is_the_floor(tmp_path: Path, height: float) 
     np.testing.assert_allclose(clearance.planes[0].normal, [-1.0, 0.0, 0.0], atol=1e-12)
     stretched = np.array([[0.0, 0.0, 0.0]])  # link c's tip at x = 0.8 + 0.03, before a wall at x = 0.9
     assert clearance.min_distance(stretched) == pytest.approx(0.9 - 0.8 - 0.03, abs=1e-9)
+    _check_smooth_distance(clearance, q)  # the analytic gradient along a wall's normal
+
+
+@pytest.mark.parametrize("case", ["masked", "paired", "excluded"])
+def test_a_floor_plane_follows_mujocos_contact_filter(tmp_path: Path, case: str) -> None:
+    """A model's plane is a floor for the shapes MuJoCo would collide with it: not where the bitmasks never meet,
+    against its paired geom alone where it collides through a `<pair>` only, not for a body an `<exclude>` pairs
+    with the world. Every moving shape had been kept above every plane, so a table MuJoCo never touches blocked
+    designs (a review)."""
+    text = _ARM.replace(
+        '<geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>\n        </body>',
+        '<geom name="gc" type="capsule" fromto="0 0 0 0.4 0 0" size="0.03" mass="1"/>\n        </body>',
+    )
+    bits = {"masked": 'contype="2" conaffinity="2"', "paired": 'contype="0" conaffinity="0"', "excluded": ""}[case]
+    text = text.replace("<worldbody>", f'<worldbody><geom name="table" type="plane" size="1 1 .1" {bits}/>')
+    contact = {"paired": '<pair geom1="table" geom2="gc"/>', "excluded": '<exclude body1="world" body2="c"/>'}
+    if case in contact:
+        text = text.replace("<actuator>", f"<contact>{contact[case]}</contact><actuator>")
+    path = tmp_path / "fold3_plane.xml"
+    path.write_text(text)
+    plant = load_plant(path)
+    clearance = limits_for(plant, velocity=3.0, acceleration=10.0, clearance_m=0.02).clearance
+    m = plant.mj_model
+    above = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, clearance.shapes[k].body) for k, _ in clearance.floor}
+    assert above == {"masked": set(), "paired": {"c"}, "excluded": {"a", "b"}}[case], above
 
 
 @pytest.mark.parametrize("mount", ["world", "pedestal"])
