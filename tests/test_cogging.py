@@ -66,8 +66,8 @@ def test_a_period_longer_than_the_motion_is_not_scanned() -> None:
 
 
 def test_a_joint_that_spans_no_period_has_no_cogging_candidate() -> None:
-    """The elbow does not move and the shoulder moves +-0.05 rad: no scanned period (the shortest is 2 pi / 40
-    = 0.157 rad) fits in 0.1 rad."""
+    """The elbow does not move and the shoulder moves +-0.05 rad: no scanned period (the shortest is 2 pi / 40.5
+    = 0.155 rad) fits in 0.1 rad."""
     s = _signals(0.05, n_true=40.0)
     assert cogging_harmonic(s, 0) is None
     assert cogging_harmonic(s, 1) is None
@@ -83,5 +83,6 @@ def test_a_period_shorter_than_the_scan_is_not_named_at_the_scans_end() -> None:
     found = position_harmonic(s, 0, s.residual[:, 0])
     assert found is not None and found[0] == COGGING_HARMONICS[-1]
     assert cogging_harmonic(s, 0) is None
-    n, _ = cogging_harmonic(_signals(1.0, n_true=37.0), 0)  # type: ignore[misc]
-    assert n == 37.0
+    for inside in (37.0, 40.0):  # 40, the shortest period named, too: the scan goes half a step beyond it
+        n, _ = cogging_harmonic(_signals(1.0, n_true=inside), 0)  # type: ignore[misc]
+        assert n == inside

@@ -97,14 +97,14 @@ def test_the_signature_names_what_stands_out() -> None:
             "a": sig((0.05, 0.4), 0.0, corr),
             "b": sig((0.05, 0.1), 0.5, corr),
             "c": sig((0.05, 0.1), 0.0, corr),
-            "d": sig((0.05, 0.1), 0.5, corr, n=40.0),  # the shortest period scanned: the torque's may be shorter
+            "d": sig((0.05, 0.1), 0.5, corr, n=40.5),  # the shortest period scanned: the torque's may be shorter
         }
     )
     a, b, c, d = text.split("; ")
     assert a.startswith("a 2.0 x noise, 40% of it where the joint turns round") and "periodic" not in a
     assert "50% of it periodic in position (0.5 rad)" in b and "turns round" not in b
     assert c == "c 2.0 x noise, correlation -0.60 with dq"
-    assert "50% of it periodic in position (0.157 rad or shorter: the shortest scanned)" in d
+    assert "50% of it periodic in position (0.155 rad or shorter: the shortest scanned)" in d
 
 
 @pytest.mark.slow

@@ -364,8 +364,9 @@ FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction")  # shapes
 # forces the plant feels that change within a few ms as the velocity crosses zero: the residual holds them only
 # low-passed at the state filter's cut-off (through the filtered acceleration), so their columns go through it too
 SHARP_EFFECTS = (*FRICTIONLOSS_EFFECTS, "stribeck_friction", "load_friction", "backlash")
-COGGING_HARMONICS = np.arange(2.0, 40.5, 0.5)  # harmonics n of sin(n q) scanned for position-periodic torque
-# [cycles per revolution]
+# harmonics n of sin(n q) scanned for position-periodic torque [cycles per revolution]: 2 to 40 can be named, and
+# 40.5 is scanned so that a period shorter than the shortest named shows as such (`cogging_harmonic`)
+COGGING_HARMONICS = np.arange(2.0, 41.0, 0.5)
 MIN_COGGING_PERIODS = 1.0  # the training motion of the joint spans at least this many periods 2 pi / n
 
 
