@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from envs.dataset import atomic_write
+from harness.rundir import STAGING_PREFIX
 
 __all__ = ["collect", "main", "report_rows", "write_report"]
 
@@ -33,8 +34,12 @@ def collect(sweep: Path) -> list[dict[str, Any]]:
     sweep = Path(sweep)
     if not sweep.is_dir():
         raise FileNotFoundError(f"sweep folder not found: {sweep}")
-    jobs = sorted({p.parent for p in sweep.rglob(".hydra")} | {p.parent for p in sweep.rglob("results.json")})
-    jobs += sorted({p.parent for p in sweep.rglob("diagnosis.json")} - set(jobs))
+
+    def found(name: str) -> set[Path]:  # not inside a run's staging folder (`harness.rundir.STAGING_PREFIX`)
+        return {p.parent for p in sweep.rglob(name) if not any(x.startswith(STAGING_PREFIX) for x in p.parts)}
+
+    jobs = sorted(found(".hydra") | found("results.json"))
+    jobs += sorted(found("diagnosis.json") - set(jobs))
     out = []
     for job in sorted(set(jobs)):
         record: dict[str, Any] = {"job": str(job.relative_to(sweep)) or ".", "overrides": _overrides(job)}

@@ -37,10 +37,12 @@ from types import FrameType
 __all__ = [
     "LOCK_NAME",
     "RESULTS_FILES",
+    "STAGING_PREFIX",
     "RunFolder",
     "RunFolderError",
     "check_output_override",
     "claim",
+    "clean_stale_temporaries",
     "kept_on_failure",
     "terminate_as_exit",
 ]
@@ -76,13 +78,38 @@ class RunFolder:
         stage = Path(tempfile.mkdtemp(dir=self.path, prefix=STAGING_PREFIX, suffix=".tmp"))
         try:
             yield stage
-            self.retire()
-            results = self.outputs[-1]
-            for name in [*sorted(p.name for p in stage.iterdir() if p.name != results), results]:
-                if (stage / name).exists():
-                    os.replace(stage / name, self.path / name)
+            with _signals_held():  # a stop between the retiring and the renames would leave neither old nor new
+                self.retire()
+                results = self.outputs[-1]
+                for name in [*sorted(p.name for p in stage.iterdir() if p.name != results), results]:
+                    if (stage / name).exists():
+                        os.replace(stage / name, self.path / name)
         finally:
             shutil.rmtree(stage, ignore_errors=True)
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGTERM and SIGINT held back within the block and raised again when it ends, to the handlers then in place
+    (the Python handlers, which run in the main thread: a thread's signal mask does not hold a signal another
+    thread of the process may take). Outside the main thread, nothing is held."""
+    caught: list[int] = []
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        caught.append(signum)
+
+    try:
+        previous = {s: signal.signal(s, hold) for s in (signal.SIGTERM, signal.SIGINT)}
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for signum in dict.fromkeys(caught):
+            signal.raise_signal(signum)
 
 
 def _check_writable(folder: Path) -> None:
@@ -164,7 +191,9 @@ def _refuse_held(folder: Path, outputs: Sequence[str], overwrite: bool) -> None:
         )
 
 
-def _clean_stale_temporaries(folder: Path) -> list[str]:
+def clean_stale_temporaries(folder: Path) -> list[str]:
+    """Remove what a killed run left in `folder`: its staging folder and its temporary files (`.<name>.*.tmp`);
+    returns their names."""
     removed = []
     for p in folder.glob(f"{STAGING_PREFIX}*.tmp"):  # the staged outputs of a run killed while writing them
         if p.is_dir():
@@ -198,7 +227,7 @@ def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool) -> Iterator[
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         _refuse_held(folder, outputs, overwrite)
-        _clean_stale_temporaries(folder)
+        clean_stale_temporaries(folder)
         yield RunFolder(folder, tuple(outputs))
     finally:
         lock.unlink(missing_ok=True)  # while still holding it: a later run finds no stale file

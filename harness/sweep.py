@@ -27,7 +27,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from harness.rundir import RESULTS_FILES
+from harness.rundir import RESULTS_FILES, clean_stale_temporaries
 
 __all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
 
@@ -82,6 +82,7 @@ def run_isolated(work: Callable[[Any], Any], cfg: Any, out: Path, *, label: str)
         with contextlib.suppress(OSError):
             out.mkdir(parents=True, exist_ok=True)
             write_json(out / "failure.json", {"error": message, "signal": name, "traceback": None})
+            clean_stale_temporaries(out)  # what it was writing when it died (no claim of that folder comes again)
         print(f"{label} failed: {message}", file=sys.stderr)
     elif code and not (out / "failure.json").exists() and not any((out / n).exists() for n in RESULTS_FILES):
         with contextlib.suppress(OSError):

@@ -907,3 +907,34 @@ def test_a_run_after_a_failed_one_in_the_same_folder_says_in_the_log_that_it_fin
     assert "ModelError" in "".join(lines) and not (out / "failure.json").exists()
     assert "sysid-run started (pid " in lines[-2]
     assert lines[-1].endswith(f"sysid-run finished: outputs in {out}")
+
+
+def test_a_stop_while_the_outputs_are_published_waits_for_the_publish(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The previous outputs are retired and the staged ones renamed into place: a SIGTERM between the two had left
+    neither (a review). The signal is now held until the publish is done, and the run then stops."""
+    import harness.rundir as rundir_module
+    from envs.dataset import atomic_write
+
+    names = ("data.csv", "recording.rrd", "results.json")
+    for name in names:
+        (tmp_path / name).write_text("old")
+    real = os.replace
+    calls: list[str] = []
+
+    def replace(src: Path, dst: Path) -> None:
+        if Path(src).parent.name.startswith(".staged.") and not Path(src).name.startswith("."):
+            calls.append(Path(dst).name)
+            if len(calls) == 2:
+                os.kill(os.getpid(), signal.SIGTERM)  # the scheduler stops the job between two renames
+        real(src, dst)
+
+    with terminate_as_exit(), claim(tmp_path, outputs=names, overwrite=True) as folder:
+        with pytest.raises(SystemExit), folder.staged() as staging:
+            for name in names:
+                atomic_write(staging / name, lambda f: f.write("new"))
+            monkeypatch.setattr(rundir_module.os, "replace", replace)
+    monkeypatch.undo()
+    assert calls == list(names)
+    assert {p.name: p.read_text() for p in tmp_path.iterdir()} == dict.fromkeys(names, "new")

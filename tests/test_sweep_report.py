@@ -57,3 +57,15 @@ def test_a_failed_job_is_reported_and_the_others_finish(tmp_path: Path) -> None:
 def test_report_of_a_missing_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     assert main([str(tmp_path / "nope")]) == 2
     assert "sweep folder not found" in capsys.readouterr().err
+
+
+def test_a_killed_jobs_staging_folder_is_no_job_of_its_own(tmp_path: Path) -> None:
+    """A job killed while publishing (SIGKILL: no clean-up) can leave its staging folder with a results file in
+    it; the report's search of the sweep folder counted it as a job."""
+    job = tmp_path / "0"
+    (job / ".hydra").mkdir(parents=True)
+    (job / "failure.json").write_text(json.dumps({"error": "killed"}))
+    staged = job / ".staged.abc.tmp"
+    staged.mkdir()
+    (staged / "results.json").write_text("{}")
+    assert [r["job"] for r in collect(tmp_path)] == ["0"]
