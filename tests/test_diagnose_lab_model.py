@@ -23,6 +23,7 @@ import pytest
 from dynamics.plant import load_plant
 from dynamics.torque import joint_torque
 from identify.diagnose import author_torque, load_author_model
+from identify.diagnose.candidates import Signals
 from identify.diagnose.residuals import describe_signature
 from identify.diagnose.testbed import Injected, author_params_of, diagnose_lab_model
 
@@ -83,11 +84,14 @@ def test_the_lab_friction_shape_at_low_speed_is_structure_the_reason_places(shar
 
 
 def test_the_signature_names_what_stands_out() -> None:
-    def sig(turning: tuple[float, float], periodic: float, corr: dict[str, float], n: float = 4 * np.pi) -> dict:
+    def sig(
+        turning: tuple[float, float], periodic: float, corr: dict[str, float], n: float = 4 * np.pi, edge: str = ""
+    ) -> dict:
+        periodic_part = {"share": periodic, "period_rad": 2 * np.pi / n, "cycles_per_revolution": n, "edge": edge}
         return {
             "rms_over_noise": 2.0,
             "turning_round": {"share_of_rows": turning[0], "share_of_residual": turning[1]},
-            "position_periodic": {"share": periodic, "period_rad": 2 * np.pi / n, "cycles_per_revolution": n},
+            "position_periodic": periodic_part,
             "correlation": corr,
         }
 
@@ -97,14 +101,46 @@ def test_the_signature_names_what_stands_out() -> None:
             "a": sig((0.05, 0.4), 0.0, corr),
             "b": sig((0.05, 0.1), 0.5, corr),
             "c": sig((0.05, 0.1), 0.0, corr),
-            "d": sig((0.05, 0.1), 0.5, corr, n=40.5),  # the shortest period scanned: the torque's may be shorter
+            "d": sig((0.05, 0.1), 0.5, corr, n=40.5, edge="shortest"),  # the torque's own may be shorter
+            "e": sig((0.05, 0.1), 0.5, corr, n=11.5, edge="longest"),  # or longer than the motion spans
         }
     )
-    a, b, c, d = text.split("; ")
+    a, b, c, d, e = text.split("; ")
     assert a.startswith("a 2.0 x noise, 40% of it where the joint turns round") and "periodic" not in a
     assert "50% of it periodic in position (0.5 rad)" in b and "turns round" not in b
     assert c == "c 2.0 x noise, correlation -0.60 with dq"
     assert "50% of it periodic in position (0.155 rad or shorter: the shortest scanned)" in d
+    assert "50% of it periodic in position (0.546 rad or longer: the longest the motion spans)" in e
+
+
+@pytest.mark.parametrize(("n_true", "edge"), [(3.0, "longest"), (42.0, "shortest"), (8.0, None)])
+def test_the_signature_says_where_the_period_found_is_at_an_end_of_the_scan(n_true: float, edge: str | None) -> None:
+    """A sin(3 q) over a 0.6 rad range (a UR5e wrist, another generator) read as periodic at 0.546 rad, the
+    longest period that range spans; a 42-cycle ripple at the shortest scanned. The signature marks either end."""
+    from identify.diagnose.residuals import residual_signature
+
+    t = np.arange(0.0, 20.0, 0.002)
+    q = np.zeros((len(t), 2))
+    swing = 0.3 if n_true == 3.0 else 1.0  # a 0.6 rad range for the long period, 2 rad for the others
+    q[:, 0] = swing * np.sin(2 * np.pi * 0.37 * t) * np.sin(2 * np.pi * 0.05 * t + 0.3)
+    residual = np.zeros_like(q)
+    residual[:, 0] = 0.05 * np.sin(n_true * q[:, 0])
+    zeros = np.zeros_like(q)
+    s = Signals(
+        time=t,
+        q=q,
+        dq=zeros,
+        ddq=zeros,
+        tau=residual,
+        tau_nominal=zeros.copy(),
+        dtau_dq=np.zeros((len(t), 2, 2)),
+        dtau_dt=zeros,
+        regressor=np.zeros((len(t), 2, 20)),
+        record=np.zeros(len(t), dtype=int),
+        actuated=np.ones(2, dtype=bool),
+    )
+    sig = residual_signature(s, residual, ("shoulder", "elbow"), np.full(2, 0.001))
+    assert sig["shoulder"]["position_periodic"]["edge"] == edge, sig["shoulder"]["position_periodic"]
 
 
 @pytest.mark.slow

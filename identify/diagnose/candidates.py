@@ -86,6 +86,7 @@ __all__ = [
     "cogging_harmonic",
     "position_harmonic",
     "rotor_chain",
+    "scanned_harmonics",
     "signals",
     "stack_signals",
 ]
@@ -662,7 +663,7 @@ def _stiffness_value(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[
     return 1.0 / c, sd / c**2
 
 
-def _scanned_harmonics(q: np.ndarray) -> np.ndarray:
+def scanned_harmonics(q: np.ndarray) -> np.ndarray:
     """The harmonics of `COGGING_HARMONICS` whose period the motion q (N,) spans `MIN_COGGING_PERIODS` times."""
     return COGGING_HARMONICS[COGGING_HARMONICS * np.ptp(q) >= 2 * np.pi * MIN_COGGING_PERIODS]
 
@@ -677,7 +678,7 @@ def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, 
     offset or a spring are, and it would extrapolate as a sinusoid to angles the data never reached), each
     fitted in the analysis band with a constant; the n explaining the most variance wins.
     """
-    shown = _scanned_harmonics(s.q[:, j])
+    shown = scanned_harmonics(s.q[:, j])
     if not shown.size:
         return None
     total = float(np.sum(r**2))
@@ -702,7 +703,7 @@ def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
     found = position_harmonic(s, j, s.residual[:, j])
     if found is None:
         return None
-    shown = _scanned_harmonics(s.q[:, j])
+    shown = scanned_harmonics(s.q[:, j])
     return None if shown.size > 1 and found[0] in (shown[0], shown[-1]) else (found[0], found[1])
 
 

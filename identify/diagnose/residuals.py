@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from identify.diagnose.candidates import COGGING_HARMONICS, Signals, position_harmonic
+from identify.diagnose.candidates import COGGING_HARMONICS, Signals, position_harmonic, scanned_harmonics
 from identify.diagnose.statistics import correlation_time
 
 __all__ = [
@@ -281,6 +281,15 @@ def residual_signature(
         idx = idx[np.argsort(pxx[idx])[::-1][:peaks]] if idx.size else np.argsort(pxx)[::-1][:1]
         probes = {"q": s.q[:, j], "dq": s.dq[:, j], "sign_dq": np.sign(s.dq[:, j]), "ddq": s.ddq[:, j]}
         best = position_harmonic(s, j, x) or (0.0, 0.0, 0.0)
+        shown = scanned_harmonics(s.q[:, j])
+        # the best at either end of the periods scanned: the residual's own period may lie beyond it
+        edge = (
+            "shortest"
+            if best[0] and best[0] >= COGGING_HARMONICS[-1]
+            else "longest"
+            if best[0] and shown.size > 1 and best[0] == shown[0]
+            else None
+        )
         rms = float(np.sqrt(np.mean(x**2)))
         out[name] = {
             "rms": rms,
@@ -292,6 +301,7 @@ def residual_signature(
                 "period_rad": 2 * np.pi / best[0] if best[0] else float("nan"),
                 "amplitude": best[1],
                 "share": best[2],
+                "edge": edge,
             },
         }
         if slow is not None:
@@ -300,6 +310,9 @@ def residual_signature(
                 "share_of_residual": float(np.sum(x[slow[:, j]] ** 2) / total),
             }
     return out
+
+
+_PERIOD_EDGES = {"shortest": " or shorter: the shortest scanned", "longest": " or longer: the longest the motion spans"}
 
 
 def describe_signature(remaining: dict[str, Any]) -> str:
@@ -317,9 +330,9 @@ def describe_signature(remaining: dict[str, Any]) -> str:
             )
         periodic = sig["position_periodic"]
         if periodic["share"] >= 0.3:
-            # the shortest period scanned: the torque's own may be shorter still (a 42-cycle ripple reads as 40)
-            shortest = periodic["cycles_per_revolution"] >= COGGING_HARMONICS[-1]
-            edge = " or shorter: the shortest scanned" if shortest else ""
+            # the shortest period scanned, or the longest the motion spans: the torque's own may lie beyond (a
+            # 42-cycle ripple read as 40.5; on a UR5e wrist moving 0.6 rad a sin(3 q) read as 0.546 rad)
+            edge = _PERIOD_EDGES.get(periodic.get("edge") or "", "")
             notes.append(f"{periodic['share']:.0%} of it periodic in position ({periodic['period_rad']:.3g} rad{edge})")
         finite = {k: v for k, v in sig["correlation"].items() if np.isfinite(v)}
         if not notes and finite:
