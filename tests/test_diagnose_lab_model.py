@@ -23,7 +23,6 @@ import pytest
 from dynamics.plant import load_plant
 from dynamics.torque import joint_torque
 from identify.diagnose import author_torque, load_author_model
-from identify.diagnose.candidates import Signals
 from identify.diagnose.residuals import describe_signature
 from identify.diagnose.testbed import Injected, author_params_of, diagnose_lab_model
 
@@ -118,27 +117,10 @@ def test_the_signature_says_where_the_period_found_is_at_an_end_of_the_scan(n_tr
     """A sin(3 q) over a 0.6 rad range (a UR5e wrist, another generator) read as periodic at 0.546 rad, the
     longest period that range spans; a 42-cycle ripple at the shortest scanned. The signature marks either end."""
     from identify.diagnose.residuals import residual_signature
+    from tests.test_cogging import _signals
 
-    t = np.arange(0.0, 20.0, 0.002)
-    q = np.zeros((len(t), 2))
-    swing = 0.3 if n_true == 3.0 else 1.0  # a 0.6 rad range for the long period, 2 rad for the others
-    q[:, 0] = swing * np.sin(2 * np.pi * 0.37 * t) * np.sin(2 * np.pi * 0.05 * t + 0.3)
-    residual = np.zeros_like(q)
-    residual[:, 0] = 0.05 * np.sin(n_true * q[:, 0])
-    zeros = np.zeros_like(q)
-    s = Signals(
-        time=t,
-        q=q,
-        dq=zeros,
-        ddq=zeros,
-        tau=residual,
-        tau_nominal=zeros.copy(),
-        dtau_dq=np.zeros((len(t), 2, 2)),
-        dtau_dt=zeros,
-        regressor=np.zeros((len(t), 2, 20)),
-        record=np.zeros(len(t), dtype=int),
-        actuated=np.ones(2, dtype=bool),
-    )
+    s = _signals(0.3 if n_true == 3.0 else 1.0, n_true=n_true)  # a 0.6 rad range for the long period, else 2 rad
+    residual = s.residual
     sig = residual_signature(s, residual, ("shoulder", "elbow"), np.full(2, 0.001))
     assert sig["shoulder"]["position_periodic"]["edge"] == edge, sig["shoulder"]["position_periodic"]
 
