@@ -938,3 +938,22 @@ def test_a_stop_while_the_outputs_are_published_waits_for_the_publish(
     monkeypatch.undo()
     assert calls == list(names)
     assert {p.name: p.read_text() for p in tmp_path.iterdir()} == dict.fromkeys(names, "new")
+
+
+def _killed_while_staging(cfg: object) -> None:
+    """A sweep job's work that is killed (SIGKILL: no clean-up of its own) while writing its staged outputs."""
+    out = Path(str(cfg))
+    staging = out / ".staged.abc.tmp"
+    staging.mkdir()
+    (staging / "data.csv").write_text("half")
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_sweep_job_killed_while_staging_leaves_no_staging_folder(tmp_path: Path) -> None:
+    """No later claim of a killed sweep job's folder comes to remove what it was writing (a review): the parent
+    removes it when it records the death."""
+    from harness.sweep import run_isolated
+
+    run_isolated(_killed_while_staging, str(tmp_path), tmp_path, label="job 0")
+    assert json.loads((tmp_path / "failure.json").read_text())["signal"] == "SIGKILL"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["failure.json"]
