@@ -182,11 +182,17 @@ class Clearance:
             si, sj = self.shapes[i], self.shapes[j]
             seg = _segment_distance(ends[i, 0], ends[i, 1], ends[j, 0], ends[j, 1])
             pair_d[:, k] = seg - si.radius - sj.radius
-        for k, (i, f) in enumerate(self.floor):
-            plane = self.planes[f]
-            height = (ends[i] - plane.point) @ plane.normal  # (2, N): each end point above the plane
-            floor_d[:, k] = height.min(axis=0) - self.shapes[i].radius
+        checked, point, normal = self._floor_checks()
+        height = np.einsum("kena,ka->ken", ends[checked] - point[:, None, None, :], normal)  # each end point's
+        floor_d[:] = (height.min(axis=1) - np.array([self.shapes[i].radius for i in checked])[:, None]).T
         return pair_d, floor_d
+
+    def _floor_checks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The floor checks as arrays: (k,) shape index, (k, 3) a point of its plane and (k, 3) its unit normal."""
+        shape = np.array([i for i, _ in self.floor], dtype=int)
+        point = np.array([self.planes[f].point for _, f in self.floor]).reshape(-1, 3)
+        normal = np.array([self.planes[f].normal for _, f in self.floor]).reshape(-1, 3)
+        return shape, point, normal
 
     def min_distance(self, q: np.ndarray, *, max_points: int = 1000) -> float:
         """Smallest distance [m] over the samples q (N, nv): every k-th sample, k the smallest stride that leaves
@@ -234,9 +240,7 @@ class Clearance:
         bodies = np.array([s.body for s in self.shapes], dtype=int)
         local = np.array([s.ends for s in self.shapes]).reshape(-1, 2, 3)  # (shapes, 2, 3) in the body frame
         radii = np.array([s.radius for s in self.shapes])
-        floor = np.array([k for k, _ in self.floor], dtype=int)
-        point = np.array([self.planes[f].point for _, f in self.floor]).reshape(-1, 3)
-        normal = np.array([self.planes[f].normal for _, f in self.floor]).reshape(-1, 3)
+        floor, point, normal = self._floor_checks()
         fromto = np.empty(6)
         jac1, jac2 = np.empty((3, nv)), np.empty((3, nv))
         distmax = self.clearance_m + 20 * temperature_m  # farther pairs weigh < exp(-20) in the soft minimum

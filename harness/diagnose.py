@@ -463,34 +463,18 @@ def _write_outputs(
     final: Diagnosis | None = None,
 ) -> None:
     """The recording, the calibrated MJCF (and `final`'s, fitted on every record), then diagnosis.json (its
-    presence means a finished run)."""
-    written: list[Path] = []
-    steps: list[tuple[Path, Callable[[Path], None]]] = []
+    presence means a finished run), into `out`: the run folder's staging folder (`RunFolder.staged`), which
+    removes them all if one fails."""
     if record:
         from harness.record import record_diagnosis  # rerun (and pyarrow) only when recording: ~60 MB less memory
 
-        steps.append(
-            (
-                out / "diagnosis.rrd",
-                lambda p: record_diagnosis(
-                    p, plant, result, _findings_markdown(result, _units(plant)), dataset=dataset
-                ),
-            )
+        record_diagnosis(
+            out / "diagnosis.rrd", plant, result, _findings_markdown(result, _units(plant)), dataset=dataset
         )
-    steps.append((out / mjcf_name, lambda p: atomic_write(p, lambda f: f.write(result.calibrated_xml))))
+    atomic_write(out / mjcf_name, lambda f: f.write(result.calibrated_xml))
     if final is not None:
-        steps.append(
-            (out / _mjcf_names(plant.name)[1], lambda p: atomic_write(p, lambda f: f.write(final.calibrated_xml)))
-        )
-    steps.append((out / "diagnosis.json", lambda p: write_json(p, payload)))
-    try:
-        for path, write in steps:
-            write(path)
-            written.append(path)
-    except BaseException:
-        for path in written:
-            path.unlink(missing_ok=True)
-        raise
+        atomic_write(out / _mjcf_names(plant.name)[1], lambda f: f.write(final.calibrated_xml))
+    write_json(out / "diagnosis.json", payload)
 
 
 def _final_fit_entry(final: Diagnosis, mjcf_name: str, datasets: Sequence[Dataset]) -> dict[str, Any]:

@@ -84,9 +84,9 @@ __all__ = [
     "band_lowpass",
     "candidates",
     "cogging_harmonic",
+    "period_edge",
     "position_harmonic",
     "rotor_chain",
-    "scanned_harmonics",
     "signals",
     "stack_signals",
 ]
@@ -663,7 +663,7 @@ def _stiffness_value(coef: np.ndarray, cov: np.ndarray, _: np.ndarray) -> tuple[
     return 1.0 / c, sd / c**2
 
 
-def scanned_harmonics(q: np.ndarray) -> np.ndarray:
+def _scanned_harmonics(q: np.ndarray) -> np.ndarray:
     """The harmonics of `COGGING_HARMONICS` whose period the motion q (N,) spans `MIN_COGGING_PERIODS` times."""
     return COGGING_HARMONICS[COGGING_HARMONICS * np.ptp(q) >= 2 * np.pi * MIN_COGGING_PERIODS]
 
@@ -678,7 +678,7 @@ def position_harmonic(s: Signals, j: int, r: np.ndarray) -> tuple[float, float, 
     offset or a spring are, and it would extrapolate as a sinusoid to angles the data never reached), each
     fitted in the analysis band with a constant; the n explaining the most variance wins.
     """
-    shown = scanned_harmonics(s.q[:, j])
+    shown = _scanned_harmonics(s.q[:, j])
     if not shown.size:
         return None
     total = float(np.sum(r**2))
@@ -701,10 +701,21 @@ def cogging_harmonic(s: Signals, j: int) -> tuple[float, float] | None:
     generator a 42-cycle ripple as n = 40 at 0.0228 +- 0.0009 N m for 0.03). The residual's signature still
     reports that harmonic."""
     found = position_harmonic(s, j, s.residual[:, j])
-    if found is None:
+    if found is None or period_edge(found[0], s.q[:, j]) is not None:
         return None
-    shown = scanned_harmonics(s.q[:, j])
-    return None if shown.size > 1 and found[0] in (shown[0], shown[-1]) else (found[0], found[1])
+    return found[0], found[1]
+
+
+def period_edge(n: float, q: np.ndarray) -> str | None:
+    """Where harmonic n [cycles per revolution] sits in the scan over a joint's motion q (N,): `shortest` at the
+    shortest period scanned (the torque's own may be shorter), `longest` at the longest the motion spans, of
+    several (it may be longer), None inside the scan (or for no harmonic, n = 0)."""
+    if not n:
+        return None
+    if n >= COGGING_HARMONICS[-1]:
+        return "shortest"
+    shown = _scanned_harmonics(q)
+    return "longest" if shown.size > 1 and n == shown[0] else None
 
 
 def _cogging(plant: Plant, train: Signals | None) -> list[Candidate]:

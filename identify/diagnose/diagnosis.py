@@ -472,7 +472,8 @@ def _check_angle_columns(
     def misfit(tau_nominal: np.ndarray) -> float:  # tau_nominal (rows, nv): of the filtered states, smooth
         return float(np.sqrt(np.mean((measured - tau_nominal[:, act]) ** 2)))
 
-    own = misfit(signal.tau_nominal[rows])
+    nominal = signal.tau_nominal[rows]
+    own = misfit(nominal)
     q, dq, ddq = signal.q[rows], signal.dq[rows], signal.ddq[rows]
 
     def column(j: int) -> str:
@@ -480,10 +481,10 @@ def _check_angle_columns(
 
     found: list[tuple[float, str]] = []  # (misfit, what the refusal says) of every alternative reading
     driven = [int(j) for j in moving if act[j]]
-    negated = misfit(-signal.tau_nominal[rows])
+    negated = misfit(-nominal)
 
     def one_negated(j: int) -> float:
-        flip = signal.tau_nominal[rows].copy()
+        flip = nominal.copy()
         flip[:, j] *= -1.0
         return misfit(flip)
 
@@ -1620,8 +1621,8 @@ def _final_fit(
     in the calibrated model. Every coefficient stays within its candidate's physical range.
 
     A column made at a value of its own coefficient (`Candidate.made_at`: MuJoCo's friction, whose ramp widens
-    with Fc, as a secant from the nominal Fc) is made again at the value fitted until the two agree (to
-    `_REMAKE_TOL` of the nominal-plus-change): the calibrated MJCF then applies the friction the fit used.
+    with Fc, as a secant from the nominal Fc) is made again at the value fitted, after every solve, until the two
+    agree (to `_REMAKE_TOL` of the larger): the calibrated MJCF then applies the friction the fit used.
     Made once from the training residual alone, a change fitted beside other effects could end far from it (a
     secant at +0.5 N m fitted at -0.5 was 0.24 N m off MuJoCo's friction at the written value).
     """
@@ -1659,7 +1660,7 @@ def _final_fit(
     gains = [int(start[i]) for i, st in enumerate(steps) if st.candidate.effect == "torque_gain"]
     if not offsets and not gains:
         return X, fit, residual - np.einsum("knp,p->kn", X, fit.coef), steps
-    X, nominal = X.copy(), s.tau_nominal
+    nominal = s.tau_nominal  # X is this fit's own copy (above)
     shift = np.zeros((len(records) + 1, plant.nv))  # the offsets found so far: every record's, then each record's
     row_record = 1 + np.searchsorted(records, s.record)
     others = [c for c in range(X.shape[2]) if c not in gains and c not in {o[0] for o in offsets}]

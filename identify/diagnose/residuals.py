@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from identify.diagnose.candidates import COGGING_HARMONICS, Signals, position_harmonic, scanned_harmonics
+from identify.diagnose.candidates import Signals, period_edge, position_harmonic
 from identify.diagnose.statistics import correlation_time
 
 __all__ = [
@@ -281,15 +281,6 @@ def residual_signature(
         idx = idx[np.argsort(pxx[idx])[::-1][:peaks]] if idx.size else np.argsort(pxx)[::-1][:1]
         probes = {"q": s.q[:, j], "dq": s.dq[:, j], "sign_dq": np.sign(s.dq[:, j]), "ddq": s.ddq[:, j]}
         best = position_harmonic(s, j, x) or (0.0, 0.0, 0.0)
-        shown = scanned_harmonics(s.q[:, j])
-        # the best at either end of the periods scanned: the residual's own period may lie beyond it
-        edge = (
-            "shortest"
-            if best[0] and best[0] >= COGGING_HARMONICS[-1]
-            else "longest"
-            if best[0] and shown.size > 1 and best[0] == shown[0]
-            else None
-        )
         rms = float(np.sqrt(np.mean(x**2)))
         out[name] = {
             "rms": rms,
@@ -301,7 +292,7 @@ def residual_signature(
                 "period_rad": 2 * np.pi / best[0] if best[0] else float("nan"),
                 "amplitude": best[1],
                 "share": best[2],
-                "edge": edge,
+                "edge": period_edge(best[0], s.q[:, j]),  # the residual's own period may lie beyond
             },
         }
         if slow is not None:
