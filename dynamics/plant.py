@@ -28,6 +28,7 @@ from dynamics.errors import ModelError, one_line
 from dynamics.friction import applied_friction_parameters, friction_enabled, friction_parameters
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
+from dynamics.stepping import Stepping
 from dynamics.urdf import URDF_SUFFIXES, urdf_as_mjcf_file
 
 __all__ = [
@@ -113,6 +114,8 @@ class Plant:
             (`dynamics.friction.friction_parameters`: 0 where the friction is taken as ideal Coulomb;
             `with_applied_friction`: the ramp MuJoCo applies, whatever the solver parameters).
         source: the file the user gave where it is not `path` itself (a URDF, compiled to the MJCF `path`).
+        stepping: how MuJoCo's own step shows in a log of its simulation (`dynamics.stepping.as_stepped`): an
+            inertia on each joint's torque and the velocity its friction ramps see; None as loaded.
     """
 
     name: str
@@ -137,6 +140,7 @@ class Plant:
     friction_speed: np.ndarray
     friction_lead: np.ndarray
     source: Path | None = None
+    stepping: Stepping | None = None
 
     @property
     def nv(self) -> int:

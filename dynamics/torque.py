@@ -1,7 +1,8 @@
 """The one torque model: the joint torque a plant needs along a motion, in closed form, with its derivatives.
 
     tau = RNEA(q, dq, ddq) (rigid body + armature, Pinocchio)  +  damping dq  +  stiffness (q - springref)
-          +  frictionloss shape(dq, ddq)
+          +  frictionloss shape(dq, ddq)  [+ a log of MuJoCo's own steps: inertia ddq, the ramps' step velocity:
+                                          `dynamics.stepping`]
 
 This is MuJoCo's passive-force model with its constraint-based `frictionloss` as the friction shape the model
 declares (`dynamics.friction`): the ramp sat((dq + lead ddq) / vt) MuJoCo's inverse dynamics applies where the
@@ -56,19 +57,29 @@ def joint_torque(
         tau[k] = data.tau
         D[0, k], D[1, k], D[2, k] = d_q, d_v, d_a  # copies: Pinocchio hands back views of `data`
     tau += plant.damping * dq + plant.stiffness * (q - plant.springref)
+    stepping = plant.stepping
+    if stepping is not None:
+        tau += stepping.inertia * ddq
+    friction_dq, friction_jac = dq, None
+    if coulomb and stepping is not None and np.any(plant.frictionloss > 0):
+        friction_dq, friction_jac = stepping.friction_velocity(plant, q, dq, ddq, jacobian=D is not None)
     if coulomb:
-        tau += plant.frictionloss * friction_shape(dq, ddq, plant.friction_speed, plant.friction_lead)
+        tau += plant.frictionloss * friction_shape(friction_dq, ddq, plant.friction_speed, plant.friction_lead)
     if D is not None:
         D[0] += np.diag(plant.stiffness)
         D[1] += np.diag(plant.damping)
+        if stepping is not None:
+            D[2] += np.diag(stepping.inertia)
         if coulomb and np.any(plant.friction_speed > 0):  # on a declared ramp: slope Fc / vt
             ramp = plant.friction_speed > 0
             width = np.where(ramp, plant.friction_speed, 1.0)
-            on_ramp = ramp & (np.abs(dq + plant.friction_lead * ddq) < width)
+            on_ramp = ramp & (np.abs(friction_dq + plant.friction_lead * ddq) < width)
             slope = np.where(on_ramp, plant.frictionloss / width, 0.0)
             idx = np.arange(plant.nv)
             D[1][:, idx, idx] += slope
             D[2][:, idx, idx] += slope * plant.friction_lead
+            if friction_jac is not None:  # the step's velocity: d friction_dq / d ddq
+                D[2] += slope[:, :, None] * friction_jac
     return tau, D
 
 

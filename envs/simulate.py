@@ -21,6 +21,7 @@ from dynamics.actuators import Actuation, as_motors
 from dynamics.errors import ModelError
 from dynamics.friction import friction_parameters, ideal_friction
 from dynamics.plant import Plant
+from dynamics.stepping import implicit_terms
 from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
 from envs.sensors import SensorModel
@@ -234,13 +235,13 @@ def _servo_rates(
     """(nu,) each actuator's fastest rate [1/s] that `m`'s integrator takes explicitly, at the pose q0 (nv,).
 
     That is its spring sqrt(kp / M) (MuJoCo's implicit integrators take velocity derivatives only) and the
-    part of its damper (kv + d) / M that the integrator does not take implicitly (`_implicit_terms`). With
-    `clamped`, the rates while a force-limited actuator's force is at its range: MuJoCo then drops its
-    velocity derivative, and its kv is explicit under any integrator. `regulated`: the actuators driven as motors
-    (`_state_dependent`, its default).
+    part of its damper (kv + d) / M that the integrator does not take implicitly
+    (`dynamics.stepping.implicit_terms`). With `clamped`, the rates while a force-limited actuator's force is at
+    its range: MuJoCo then drops its velocity derivative, and its kv is explicit under any integrator.
+    `regulated`: the actuators driven as motors (`_state_dependent`, its default).
     """
     inertia = _mass_diagonal(plant, q0)
-    joint_implicit, actuator_implicit = _implicit_terms(m)
+    joint_implicit, actuator_implicit = implicit_terms(m)
     regulated = _state_dependent(plant) if regulated is None else regulated
     out = np.zeros(len(plant.actuation.actuators))
     for i, a in enumerate(plant.actuation.actuators):
@@ -320,7 +321,7 @@ class _StepTerms:
     """
 
     def __init__(self, plant: Plant, m: mujoco.MjModel, regulated: np.ndarray) -> None:
-        joint_implicit, actuator_implicit = _implicit_terms(m)
+        joint_implicit, actuator_implicit = implicit_terms(m)
         integrator = int(m.opt.integrator)
         self.semi_implicit = integrator != int(mujoco.mjtIntegrator.mjINT_RK4)
         self.coriolis_implicit = integrator == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
@@ -376,18 +377,6 @@ class _StepTerms:
             mujoco.mj_comVel(m, s)
             mujoco.mj_rne(m, s, 0, out[i])
         return out[0] - out[1]
-
-
-def _implicit_terms(m: mujoco.MjModel) -> tuple[bool, bool]:
-    """Whether the integrator takes (joint damping, actuator velocity gain) at the end of the step.
-
-    `implicit` and `implicitfast` take every velocity derivative of the smooth forces (never a position one);
-    Euler takes the joint damping only, unless `eulerdamp` is disabled; RK4 takes nothing.
-    """
-    integrator = int(m.opt.integrator)
-    implicit = integrator in (int(mujoco.mjtIntegrator.mjINT_IMPLICIT), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
-    eulerdamp = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    return implicit or (integrator == int(mujoco.mjtIntegrator.mjINT_EULER) and eulerdamp), implicit
 
 
 def _setpoints(

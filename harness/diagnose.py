@@ -302,6 +302,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         record_joint_offsets=record_joint_offsets(cfg),
         check_torque_signs=bool(opts.get("check_torque_signs", True)),
         hard_friction=_hard_friction(cfg),
+        mujoco_steps=opts.get("mujoco_steps"),
     )
 
     def run_diagnosis(train: Sequence[Dataset], **kwargs: Any) -> Diagnosis:  # each fit from the same seed

@@ -366,6 +366,11 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     for key in keys:
         if OmegaConf.select(cfg, key) is not None:
             _flag(cfg, key)
+    steps = OmegaConf.select(cfg, "diagnose.mujoco_steps")
+    if steps is not None and not isinstance(steps, bool):
+        raise ConfigError(
+            f"diagnose.mujoco_steps must be true, false or null (null: decided from the data), got {steps!r}"
+        )
     nuisances = [k for k in (flag_set_by(cfg, "record_offsets"), flag_set_by(cfg, "record_joint_offsets")) if k]
     if len(nuisances) == 2:
         raise ConfigError(

@@ -200,6 +200,10 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("data.tau_lead_s=0.1", r"data\.tau_lead_s=0\.1 s is not below one sample \(0\.002 s\) of .*train\.csv"),
         ("data.tau_lead_s=0.001 diagnose.derivatives=given", r"data\.tau_lead_s=0\.001 s needs states derived"),
         ("diagnose.recording=maybe", r"diagnose\.recording must be true or false, got 'maybe'"),
+        (
+            "diagnose.mujoco_steps=auto",
+            r"diagnose\.mujoco_steps must be true, false or null \(null: decided from the data\), got 'auto'",
+        ),
         ("diagnose=foo", r"diagnose must be a mapping of settings .* got 'foo'"),
         ("data.validation=[]", r"data\.validation must name the held-out file\(s\) .* got \[\]"),
         ("data.validation={a:1}", r"data\.validation must name the held-out file\(s\) .* got \{'a': 1\}"),

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from dynamics.plant import load_plant
 from identify.diagnose import Diagnosis
 from identify.diagnose.calibrate import mjcf_measured_torque
 from identify.diagnose.candidates import candidates
@@ -670,9 +671,20 @@ def test_the_hidden_effect_table_judges_the_value_against_its_std() -> None:
     from identify.diagnose.testbed import _z, hidden_markdown
 
     gain = Injected("torque_gain", "elbow", 0.1)
-    assert _z(SimpleNamespace(effect="torque_gain", value=1.101, std=0.001), gain) == pytest.approx(1.0)
-    assert _z(SimpleNamespace(effect="armature", value=1.0, std=0.001), gain) is None  # another effect first
-    assert _z(SimpleNamespace(effect="torque_gain", value=1.0, std=None), gain) is None  # at a bound: no std
+    plant = load_plant("two_link")
+
+    def first(effect: str, value: float, std: float | None, target: str = "elbow", alts=()):  # type: ignore[no-untyped-def]
+        alternatives = [{"effect": e, "target": t} for e, t in alts]
+        return SimpleNamespace(effect=effect, target=target, value=value, std=std, confounded_with=alternatives)
+
+    assert _z(first("torque_gain", 1.101, 0.001), gain, plant) == pytest.approx(1.0)
+    assert _z(first("armature", 1.0, 0.001), gain, plant) is None  # another effect first
+    assert _z(first("torque_gain", 1.0, None), gain, plant) is None  # at a bound: no std
+    assert _z(first("torque_gain", 1.101, 0.001, "shoulder"), gain, plant) is None  # another joint
+    # a payload's size is its mass wherever the finding puts it among the bodies it names as equivalent
+    payload = Injected("payload", "elbow", 0.1)
+    assert _z(first("payload", 0.102, 0.001, "link1", [("payload", "link2")]), payload, plant) == pytest.approx(2.0)
+    assert _z(first("payload", 0.102, 0.001, "link1"), payload, plant) is None
     row = {"system": "two_link", "expect": "named", "verdict": "explained", "joint": "elbow", "ok": True}
     rows = [
         {

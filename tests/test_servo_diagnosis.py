@@ -72,6 +72,9 @@ def test_clean_servo_data_have_a_small_simulation_error_and_no_discrepancy(tmp_p
     plant, train, val = _servo_data(tmp_path)
     dg = diagnose(plant, [train], [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0})
     assert dg.verdict == "no_discrepancy", (dg.verdict, [f.name for f in dg.findings])
+    # envs.simulate reports the continuous robot's torque: not read as a log of MuJoCo's steps (h kv = 0.002 here)
+    reading = dg.info["mujoco_steps"]
+    assert not reading["read"] and abs(reading["scale"]) < 0.25, reading
     sim = dg.models["nominal"]["simulation_error"]
     assert max(sim.values()) < 0.02, sim
 

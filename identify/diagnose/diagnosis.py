@@ -24,6 +24,7 @@ from dynamics.base import base_parameters
 from dynamics.errors import DataError
 from dynamics.plant import Plant, as_simulated, plant_from_xml
 from dynamics.regressor import ParameterModel
+from dynamics.stepping import as_stepped, integrator_name, step_inertia
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states, state_cutoff_hz
@@ -606,6 +607,7 @@ def diagnose(
     check_torque_signs: bool = True,
     hard_friction: bool = False,
     record_joint_offsets: bool = False,
+    mujoco_steps: bool | None = None,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -641,6 +643,10 @@ def diagnose(
         hard_friction: the records come from a simulation that applied each frictionloss as Coulomb friction
             (`sysid-run`'s `system.hard_friction`): the plant's friction is read as `plant` reads it (ideal
             Coulomb but for a declared ramp). False: as MuJoCo applies it (`dynamics.plant.as_simulated`).
+        mujoco_steps: the records are a log of MuJoCo's own simulation of the model at its step (positions and the
+            actuator force of each step), whose integrator adds an inertia to the logged torque
+            (`dynamics.stepping`): read them so (True), as a robot's (False), or so where that inertia, at its
+            size, explains most of the training residual (None: `_steps_reading`).
 
     Returns:
         The diagnosis (see `Diagnosis`).
@@ -662,6 +668,11 @@ def diagnose(
     asked_band_hz = band_hz
     band_hz = analysis_band(band_hz, [*train, *validation], derivatives, options)
     tr = _records(plant, train, derivatives, options, band_hz)
+    steps_read = _steps_reading(plant, tr, mujoco_steps)
+    if steps_read is not None and steps_read["read"]:
+        simulated = partial(_stepped_after, simulated)
+        plant = as_stepped(plant)
+        tr = _records(plant, train, derivatives, options, band_hz)
     rest = np.zeros((len(tr), plant.nv))  # each training record's angle offset, found before the selection
     if record_joint_offsets and len(tr) > 1:
         # every column is then evaluated at each record's q - offset, not only the nominal torque in the final fit
@@ -905,8 +916,10 @@ def diagnose(
             "left_out_at_limit": at_stops,
             "outside_training": outside,
             "torque_lead": None if lead is None else {"delay_s": lead[0], "std_s": lead[1]},
+            "mujoco_steps": steps_read,
         },
         notes=[a.describe() for a in anomalies]
+        + _steps_note(steps_read)
         + _lead_note(lead, float(min(d.dt for d in train)), float(train[0].tau_lead_s))
         + (
             [
@@ -1825,6 +1838,86 @@ def _rigid_refit(
     fit = fit_columns(X[:, :, kept], s.residual, weights, record=s.record, used=s.used)
     step = Step(rb[0], kept, 0.0, 0.0, 0.0)
     return extension_from_fit(plant, [step], fit, base_idx)
+
+
+STEP_SCALE_BAND = 0.25  # the integrator's inertia fitted to the training residual at 1 +- this ...
+STEP_MIN_Z = 5.0  # ... and this many std from 0 reads the records as MuJoCo's steps
+
+
+def _stepped_after(simulated: Callable[[Plant], Plant], plant: Plant) -> Plant:
+    """`simulated(plant)` as a log of MuJoCo's steps of it shows it (`dynamics.stepping.as_stepped`)."""
+    return as_stepped(simulated(plant))
+
+
+def _steps_note(reading: dict[str, Any] | None) -> list[str]:
+    """What the report says of the reading of the records as MuJoCo's steps (`_steps_reading`)."""
+    if reading is None:
+        return []
+    inertia = ", ".join(f"{n} {v:.4g}" for n, v in reading["inertia"].items() if v)
+    step = f"{reading['integrator']} at its {reading['timestep_s'] * 1e3:g} ms step"
+    fitted = (
+        f"fitted to the training residual at {reading['scale']:.4g} +- {reading['scale_std']:.2g} times its size, it "
+        f"explains {reading['share']:.1%} of it"
+    )
+    if reading["read"]:
+        why = "as asked (diagnose.mujoco_steps=true)" if reading["asked"] else fitted
+        return [
+            f"the records read as a log of MuJoCo's own simulation of this model ({step}): its integrator takes the "
+            f"joint damping and the servos' velocity gains at the end of each step, which adds an inertia to the "
+            f"torque logged ({inertia}; dynamics.stepping) and moves the velocity a frictionloss ramp sees, as no "
+            f"robot does; the step is taken into every model's torque here, and not into the calibrated MJCF, which "
+            f"MuJoCo steps the same way ({why}; "
+            "diagnose.mujoco_steps=false reads them as a robot's)"
+        ]
+    if reading["asked"] is False:
+        return []
+    return (
+        [
+            f"not read as a log of MuJoCo's own simulation of this model ({step}), whose integrator would add an "
+            f"inertia to the torque logged ({inertia}): {fitted} (diagnose.mujoco_steps=true reads them so)"
+        ]
+        if abs(reading["scale"] - 1.0) <= STEP_SCALE_BAND
+        else []
+    )
+
+
+def _steps_reading(plant: Plant, records: list[_Record], asked: bool | None) -> dict[str, Any] | None:
+    """Whether the records are read as a log of MuJoCo's own steps of `plant` (`dynamics.stepping`), and why.
+
+    None where the model's integrator adds no inertia (RK4, or no joint damping and no implicit servo damping).
+    Asked (True or False) it is what was asked; otherwise what the step changes in the nominal torque (the
+    inertia h (kv +- D / 2) of each joint, and the velocity its friction ramps see), scaled by one factor fitted
+    to the training residual in the analysis band (each joint weighted by its residual's inverse mean square),
+    must come out within `STEP_SCALE_BAND` of 1 and `STEP_MIN_Z` std from 0: a log of
+    MuJoCo's Panda through its own servos at 2 ms (0.9 kg m^2 on joints 1 and 2) does, and so does one of its
+    motor-driven copy (h D / 2 = 0.001 kg m^2 on every joint); a robot would need rotor inertias off the model's
+    by that much, in that joint-by-joint ratio.
+    """
+    inertia = step_inertia(plant)
+    if not np.any(inertia):
+        return None
+    sig = stack_signals([r.signals for r in records])
+    residual = sig.residual
+    # what the step changes in the nominal torque: its inertia, and the velocity the friction ramps see
+    stepped = joint_torque(as_stepped(plant), sig.q, sig.dq, sig.ddq)[0]
+    column = sig.in_band(stepped - sig.tau_nominal)[:, :, None]
+    power = np.mean(residual**2, axis=0)
+    weights = np.where((inertia != 0) & (power > 0), 1.0 / np.where(power > 0, power, 1.0), 0.0)
+    fit = fit_columns(column, residual, weights, record=sig.record, used=sig.used)
+    scale, std = float(fit.coef[0]), float(np.sqrt(max(fit.cov[0, 0], 0.0)))
+    left = residual - scale * column[:, :, 0]
+    share = 1.0 - float(np.sum(weights * np.sum(left**2, axis=0)) / np.sum(weights * np.sum(residual**2, axis=0)))
+    fits = abs(scale - 1.0) <= STEP_SCALE_BAND and scale >= STEP_MIN_Z * std
+    return {
+        "read": bool(fits if asked is None else asked),
+        "asked": asked,
+        "integrator": integrator_name(plant.mj_model),
+        "timestep_s": float(plant.mj_model.opt.timestep),
+        "inertia": _per_joint(plant.joint_names, inertia),
+        "scale": scale,
+        "scale_std": std,
+        "share": share,
+    }
 
 
 def _pinned_at_null(findings: list[Finding], nulls: list[float]) -> list[Finding]:

@@ -62,6 +62,10 @@ __all__ = [
     "lab_model_table",
     "lab_rollout",
     "rollout",
+    "servo_log",
+    "servo_log_cases",
+    "servo_log_markdown",
+    "servo_log_table",
     "torque_driven",
 ]
 
@@ -300,6 +304,10 @@ def _reference(t: float, freqs: np.ndarray, phases: np.ndarray, amps: np.ndarray
     return q, dq, ddq
 
 
+# hidden in the plant's compiled model (`_hidden_model`), not applied as forces of the testbed's own
+MODEL_EFFECTS = ("viscous_friction", "coulomb_friction", "armature", "joint_stiffness", "payload")
+
+
 def _hidden_model(plant: Plant, effects: list[Injected]) -> mujoco.MjModel:
     m = mujoco.MjModel.from_xml_path(str(plant.path))
     for e in effects:
@@ -429,6 +437,81 @@ def rollout(
     # `envs.simulate` has it
     h = 0.0 if m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else float(m.opt.timestep)
     return plant, _measure(plant, effects, time, q_log, tau_log, cfg, rng, source, lead_s=0.5 * (1.0 / rate_hz - h))
+
+
+def servo_log(
+    mjcf: str | Path,
+    *,
+    center: Sequence[float],
+    amplitude: Sequence[float],
+    rng: np.random.Generator,
+    duration_s: float,
+    sigma_tau: float | Sequence[float],
+    effects: Sequence[Injected] = (),
+    max_hz: float = 1.0,
+    rate_hz: float | None = None,
+    source: str = "servo_log",
+) -> tuple[Plant, Dataset]:
+    """A log of a servo-driven model as MuJoCo users write one (a Menagerie arm as it comes): its own position
+    servos given a multi-sine about `center` as their targets, `mj_step` at the model's own integrator and step,
+    and at each sample the positions before a step and the actuator force of that step (`qfrc_actuator`), with
+    white torque noise `sigma_tau` [N m] and encoder noise. No feed-forward, no torque-driven copy, no
+    correction of the integrator's end-of-step terms (`dynamics.stepping`): what `envs.simulate` does, this does
+    not.
+
+    Args:
+        mjcf: the model; every actuator a position servo of gear 1 on its own joint.
+        center, amplitude: (nv,) the pose the targets swing about and each joint's multi-sine amplitude [rad].
+        effects: hidden in the simulated copy (`MODEL_EFFECTS`) or in what the sensors report (`SENSOR_EFFECTS`).
+        rate_hz: samples per second, a whole fraction of the physics rate (None: one per physics step).
+
+    Returns:
+        (the nominal plant, the record).
+    """
+    plant = load_plant(mjcf)
+    servos = [a for a in plant.actuation.actuators if a.kind == "position" and a.gear == 1.0]
+    if len(servos) != plant.nv or len({a.joint for a in servos}) != plant.nv:
+        raise ValueError(f"{mjcf}: servo_log needs one position servo of gear 1 on every joint")
+    bad = [e.effect for e in effects if e.effect not in MODEL_EFFECTS + SENSOR_EFFECTS]
+    if bad:
+        valid = ", ".join(MODEL_EFFECTS + SENSOR_EFFECTS)
+        raise ValueError(f"servo_log cannot hide {bad[0]!r}; valid choices: {valid}")
+    m = _hidden_model(plant, [e for e in effects if e.effect in MODEL_EFFECTS])
+    d = mujoco.MjData(m)
+    h = float(m.opt.timestep)
+    every = 1 if rate_hz is None else max(int(round(1.0 / (rate_hz * h))), 1)
+    freqs, phases, amps = _multisine(rng, np.asarray(amplitude, dtype=float), max_hz)
+    joint_of = np.array([a.joint for a in plant.actuation.actuators])
+    d.qpos[:] = center
+    mujoco.mj_forward(m, d)
+    n = int(round(duration_s / (every * h)))
+    time, q_log, tau_log = np.zeros(n), np.zeros((n, plant.nv)), np.zeros((n, plant.nv))
+    for k in range(n):
+        for i in range(every):
+            target = np.asarray(center) + _reference(float(d.time), freqs, phases, amps)[0]
+            d.ctrl[:] = target[joint_of]
+            if i == 0:
+                time[k], q_log[k] = d.time, d.qpos
+            mujoco.mj_step(m, d)
+            if i == 0:
+                tau_log[k] = d.qfrc_actuator
+        reason = unstable(d, plant.joint_names)
+        if reason:
+            raise ModelError(f"servo_log {plant.name}: the simulation diverged at t = {time[k]:.3f} s{reason}")
+    time = time - time[0]
+    q, tau = _sensed(plant.joint_names, effects, time, q_log, tau_log)
+    tau = tau + rng.normal(0.0, 1.0, tau.shape) * np.asarray(sigma_tau, dtype=float)
+    q = q + rng.normal(0.0, _ENCODER_SIGMA, q.shape)
+    data = Dataset(
+        time=time,
+        q=q,
+        tau=tau,
+        joint_names=plant.joint_names,
+        actuated=np.ones(plant.nv, bool),
+        source=source,
+        meta={"generator": "identify.diagnose.testbed.servo_log", "effects": [e.__dict__ for e in effects]},
+    )
+    return plant, data
 
 
 # what the sensors do, not the plant
@@ -651,11 +734,89 @@ def arm_effect_table(robots: str | Path, folder: str | Path, seeds: range = rang
             runs = [diagnose_case(arm, effects, seed, mjcf=path, settings=settings) for seed in seeds]
             row = _row(arm, effects, "named" if effects else "clean", *runs[0])
             truth = effects[0] if effects else None
-            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth) for _, dg in runs]
+            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
             row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
             row["seeds"] = list(seeds)
             rows.append(row)
     return rows
+
+
+def servo_log_cases(arm: str) -> list[list[Injected]]:
+    """The effects `servo_log_table` hides in an arm of `ARMS` (the clean case first): in the plant and in the
+    sensor, on joints from the base to the wrist (those of `arm_cases`)."""
+    cases = arm_cases(arm)
+    return [cases[0], cases[1], cases[4], cases[6]]  # clean, viscous, armature, torque gain
+
+
+def servo_log_table(robots: str | Path, seeds: range = range(2)) -> list[dict[str, Any]]:
+    """One row per arm of `ARMS` and case of `servo_log_cases`: each arm as it comes in `robots`/<arm>.xml,
+    through its own position servos at its own integrator and step, logged as MuJoCo users log it
+    (`servo_log`: 10 s to train on, 5 s to validate, 500 Hz), diagnosed with the step inertia read from the
+    data (`diagnose(mujoco_steps=None)`); `z_seeds` and `ok_seeds` as in `arm_effect_table`, `steps_seeds` the
+    reading of each seed (read, scale, its std)."""
+    from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
+
+    rows = []
+    for arm, settings in ARMS.items():
+        path = Path(robots) / f"{arm}.xml"
+        for effects in servo_log_cases(arm):
+            runs = []
+            for seed in seeds:
+                rngs = np.random.default_rng(seed).spawn(2)
+                kw = {
+                    "center": settings.center,
+                    "amplitude": settings.amplitude,
+                    "sigma_tau": settings.sigma_tau,
+                    "effects": effects,
+                    "rate_hz": 500.0,
+                }
+                plant, train = servo_log(path, rng=rngs[0], duration_s=10.0, **kw)  # type: ignore[arg-type]
+                _, val = servo_log(path, rng=rngs[1], duration_s=5.0, source="servo_log_validation", **kw)  # type: ignore[arg-type]
+                dg = diagnose(
+                    plant, [train], [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}
+                )
+                runs.append((plant, dg))
+            row = _row(arm, effects, "named" if effects else "clean", *runs[0])
+            truth = effects[0] if effects else None
+            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
+            row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
+            row["steps_seeds"] = [
+                None
+                if dg.info["mujoco_steps"] is None
+                else [dg.info["mujoco_steps"][k] for k in ("read", "scale", "scale_std")]
+                for _, dg in runs
+            ]
+            row["seeds"] = list(seeds)
+            rows.append(row)
+    return rows
+
+
+def servo_log_markdown(rows: list[dict[str, Any]]) -> str:
+    """`hidden_markdown`'s table for `servo_log_table`, with how the first seed's records were read."""
+    lines = [
+        "| system | hidden | read as MuJoCo's steps: scale ± std | named first | value ± std | (value − truth) / std | "
+        "verdict | ok (seeds) |",
+        "|---|---|---|---|---:|---:|---|---|",
+    ]
+    for r in rows:
+        steps = r["steps_seeds"][0]
+        read = "-" if steps is None else f"{'yes' if steps[0] else 'no'}: {steps[1]:.4f} ± {steps[2]:.1g}"
+        value = "-" if r["value"] is None else f"{r['value']:.4g} ± {r['std']:.2g}"
+        z = "-" if r.get("z") is None else f"{r['z']:+.1f}"
+        oks = f"{sum(r['ok_seeds'])} of {len(r['ok_seeds'])}"
+        lines.append(
+            f"| {r['system']} | {r['truth']} | {read} | {r['named_first']} | {value} | {z} | {r['verdict']} | {oks} |"
+        )
+    ok = sum(sum(r["ok_seeds"]) for r in rows)
+    total = sum(len(r["ok_seeds"]) for r in rows)
+    zs = [z for r in rows for z in r["z_seeds"] if z is not None]
+    lines += [
+        "",
+        f"Over seeds {rows[0]['seeds'][0]}-{rows[0]['seeds'][-1]}: {ok} of {total} diagnoses as expected; of the "
+        f"{len(zs)} values where the hidden effect is named first, {sum(abs(z) <= 1 for z in zs)} lie within 1 std "
+        f"of the truth and {sum(abs(z) <= 2 for z in zs)} within 2.",
+    ]
+    return "\n".join(lines)
 
 
 def _row(system: str, effects: list[Injected], expect: str, plant: Plant, dg: Any) -> dict[str, Any]:
@@ -671,7 +832,7 @@ def _row(system: str, effects: list[Injected], expect: str, plant: Plant, dg: An
         "named_first": first.name if first else "-",
         "value": first.value if first else None,
         "std": first.std if first else None,
-        "z": _z(first, truth),
+        "z": _z(first, truth, plant),
         "verdict": dg.verdict,
         "findings": [f.name for f in dg.findings],
         "nominal_rms": dg.models["nominal"]["torque_rms"][name],
@@ -683,12 +844,25 @@ def _row(system: str, effects: list[Injected], expect: str, plant: Plant, dg: An
     return row
 
 
-def _z(first: Any, truth: Injected | None) -> float | None:
+def _z(first: Any, truth: Injected | None, plant: Plant) -> float | None:
     """(value - truth) / std of the first finding where it is the hidden effect itself (its headline value the
-    injected size; a gain's is 1 + size) and has a std; None otherwise."""
+    injected size; a gain's is 1 + size), on its joint (or among the equivalent ones it names), with a std; None
+    otherwise (an armature named on joint 7 for one hidden on joint 6 says nothing of that one's size)."""
     if first is None or truth is None or first.effect != truth.effect or not (first.std and np.isfinite(first.std)):
         return None
+    if (truth.effect, _target(truth, plant)) not in _names(first):
+        return None
     return float((first.value - truth.value) / first.std)
+
+
+def _target(truth: Injected, plant: Plant) -> str:
+    """What a finding of the hidden effect names: its joint, or for a payload the joint's body."""
+    return plant.body_names[plant.joint_names.index(truth.joint)] if truth.effect == "payload" else truth.joint
+
+
+def _names(f: Any) -> set[tuple[str, str]]:
+    """(effect, target) of a finding and of the alternatives it is confounded with."""
+    return {(f.effect, f.target)} | {(c["effect"], c["target"]) for c in f.confounded_with}
 
 
 def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
@@ -699,10 +873,10 @@ def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
     assert truth is not None
     if not dg.findings:
         return False
-    f = dg.findings[0]
-    names = {(f.effect, f.target)} | {(c["effect"], c["target"]) for c in f.confounded_with}
-    target = plant.body_names[plant.joint_names.index(truth.joint)] if truth.effect == "payload" else truth.joint
-    return (truth.effect, target) in names and dg.verdict in ("explained", "unexplained_structure")
+    return (truth.effect, _target(truth, plant)) in _names(dg.findings[0]) and dg.verdict in (
+        "explained",
+        "unexplained_structure",
+    )
 
 
 def hidden_markdown(rows: list[dict[str, Any]]) -> str:
