@@ -279,8 +279,9 @@ def _shift(x: np.ndarray, fraction: float) -> np.ndarray:
     """x evaluated `fraction` of a sample later (|fraction| <= 1), by linear interpolation; ends held."""
     if fraction == 0:
         return x
-    if abs(fraction) > 1:
+    if abs(fraction) > 1 + 1e-9:
         raise ValueError(f"a shift of {fraction} samples is beyond the one-sample interpolation")
+    fraction = min(max(fraction, -1.0), 1.0)  # a whole sample, to the round-off of the times it came from
     step = 1 if fraction > 0 else -1
     neighbour = np.roll(x, -step, axis=0)
     neighbour[-1 if step > 0 else 0] = x[-1 if step > 0 else 0]

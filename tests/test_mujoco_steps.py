@@ -85,9 +85,9 @@ def _servo_arm(tmp_path: Path) -> Path:
     return path
 
 
-def _diagnosed(path: Path, seed: int, mujoco_steps: bool | None = None, effects=()):  # type: ignore[no-untyped-def]
+def _diagnosed(path: Path, seed: int, mujoco_steps: bool | None = None, effects=(), positions="before"):  # type: ignore[no-untyped-def]
     rngs = np.random.default_rng(seed).spawn(2)
-    kw = {"center": (0.0, 0.0), "amplitude": (0.8, 1.0), "sigma_tau": 0.01, "effects": effects}
+    kw = {"center": (0.0, 0.0), "amplitude": (0.8, 1.0), "sigma_tau": 0.01, "effects": effects, "positions": positions}
     plant, train = servo_log(path, rng=rngs[0], duration_s=10.0, rate_hz=500.0, **kw)  # type: ignore[arg-type]
     _, val = servo_log(path, rng=rngs[1], duration_s=5.0, rate_hz=500.0, source="servo_log_val", **kw)  # type: ignore[arg-type]
     return diagnose(
@@ -108,13 +108,27 @@ def test_a_servo_arm_s_own_mujoco_log_is_clean(tmp_path: Path, seed: int) -> Non
     path = _servo_arm(tmp_path)
     dg = _diagnosed(path, seed)
     reading = dg.info["mujoco_steps"]
-    assert reading["read"] and reading["asked"] is None
+    assert reading["read"] and reading["asked"] is None and not reading["positions_after_step"]
     assert abs(reading["scale"] - 1.0) < 0.01 and reading["share"] > 0.95, reading
+    assert abs(reading["torque_lag_s"]) < 3 * reading["torque_lag_std_s"] + 1e-4, reading
     assert dg.verdict == "no_discrepancy", (dg.verdict, [f.name for f in dg.findings])
     assert any("read as a log of MuJoCo's own simulation" in n for n in dg.notes)
     as_robot = _diagnosed(path, seed, mujoco_steps=False)
     assert not as_robot.info["mujoco_steps"]["read"]
     assert as_robot.findings and as_robot.verdict != "no_discrepancy", as_robot.verdict
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_log_with_the_positions_after_each_step_is_read_a_step_earlier(tmp_path: Path, seed: int) -> None:
+    """A loop that logs `d.time`, `d.qpos` and `d.qfrc_actuator` once `mj_step` returns pairs each force with the
+    positions one step later: its torque is a step (2 ms) behind its row. Before, that was named as a time delay
+    of 2 ms on every joint (the Panda's, `explained`); now each row's torque is read at the step before it."""
+    dg = _diagnosed(_servo_arm(tmp_path), seed, positions="after")
+    reading = dg.info["mujoco_steps"]
+    assert reading["read"] and reading["positions_after_step"], reading
+    assert abs(reading["torque_lag_s"] - 0.002) < 0.0005, reading
+    assert dg.verdict == "no_discrepancy", (dg.verdict, [f.name for f in dg.findings])
+    assert any("logged after each step" in n for n in dg.notes)
 
 
 def test_an_effect_hidden_in_such_a_log_is_named_at_its_size(tmp_path: Path) -> None:
@@ -190,23 +204,16 @@ def test_the_xarm7_s_own_mujoco_log_is_clean() -> None:
     assert dg.verdict == "no_discrepancy", (dg.verdict, [f.name for f in dg.findings])
 
 
-def test_the_log_generator_refuses_what_it_cannot_hide_and_a_model_without_servos(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match=r"servo_log cannot hide 'cogging'; valid choices: viscous_friction"):
-        servo_log(
-            _servo_arm(tmp_path),
-            center=(0, 0),
-            amplitude=(1, 1),
-            rng=np.random.default_rng(0),
-            duration_s=1.0,
-            sigma_tau=0.01,
-            effects=[Injected("cogging", "elbow", 0.1, 6.0)],
-        )
-    with pytest.raises(ValueError, match=r"two_link.xml: servo_log needs one position servo of gear 1 on every"):
-        servo_log(
-            REPO / "mjcf" / "two_link.xml",
-            center=(0, 0),
-            amplitude=(1, 1),
-            rng=np.random.default_rng(0),
-            duration_s=1.0,
-            sigma_tau=0.01,
-        )
+@pytest.mark.parametrize(
+    ("model", "extra", "message"),
+    [
+        ("servo", {"effects": [Injected("cogging", "elbow", 0.1, 6.0)]}, r"cannot hide 'cogging'; valid choices: vis"),
+        ("servo", {"positions": "during"}, r"servo_log positions 'during'; valid choices: after, before"),
+        ("motors", {}, r"two_link.xml: servo_log needs one position servo of gear 1 on every joint"),
+    ],
+)
+def test_the_log_generator_refuses_what_it_cannot_do(tmp_path: Path, model: str, extra: dict, message: str) -> None:  # type: ignore[type-arg]
+    path = _servo_arm(tmp_path) if model == "servo" else REPO / "mjcf" / "two_link.xml"
+    kw = {"center": (0, 0), "amplitude": (1, 1), "duration_s": 1.0, "sigma_tau": 0.01, **extra}
+    with pytest.raises(ValueError, match=message):
+        servo_log(path, rng=np.random.default_rng(0), **kw)  # type: ignore[arg-type]

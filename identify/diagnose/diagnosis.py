@@ -672,6 +672,10 @@ def diagnose(
     if steps_read is not None and steps_read["read"]:
         simulated = partial(_stepped_after, simulated)
         plant = as_stepped(plant)
+        if steps_read["positions_after_step"]:  # each row's torque is the step before it's: read it there
+            h = steps_read["timestep_s"]
+            train = [dataclasses.replace(d, tau_lead_s=d.tau_lead_s - h) for d in train]
+            validation = [dataclasses.replace(d, tau_lead_s=d.tau_lead_s - h) for d in validation]
         tr = _records(plant, train, derivatives, options, band_hz)
     rest = np.zeros((len(tr), plant.nv))  # each training record's angle offset, found before the selection
     if record_joint_offsets and len(tr) > 1:
@@ -1842,6 +1846,7 @@ def _rigid_refit(
 
 STEP_SCALE_BAND = 0.25  # the integrator's inertia fitted to the training residual at 1 +- this ...
 STEP_MIN_Z = 5.0  # ... and this many std from 0 reads the records as MuJoCo's steps
+STEP_LAG_BAND = 0.25  # a torque behind the motion by one physics step, to this share of it: positions logged after
 
 
 def _stepped_after(simulated: Callable[[Plant], Plant], plant: Plant) -> Plant:
@@ -1861,6 +1866,12 @@ def _steps_note(reading: dict[str, Any] | None) -> list[str]:
     )
     if reading["read"]:
         why = "as asked (diagnose.mujoco_steps=true)" if reading["asked"] else fitted
+        if reading["positions_after_step"]:
+            why += (
+                f"; the positions were logged after each step, beside the force of that step (the torque "
+                f"{reading['torque_lag_s'] * 1e3:.3g} +- {reading['torque_lag_std_s'] * 1e3:.2g} ms behind its row, "
+                "one step): each row's torque is read at the step before it"
+            )
         return [
             f"the records read as a log of MuJoCo's own simulation of this model ({step}): its integrator takes the "
             f"joint damping and the servos' velocity gains at the end of each step, which adds an inertia to the "
@@ -1901,22 +1912,37 @@ def _steps_reading(plant: Plant, records: list[_Record], asked: bool | None) -> 
     # what the step changes in the nominal torque: its inertia, and the velocity the friction ramps see
     stepped = joint_torque(as_stepped(plant), sig.q, sig.dq, sig.ddq)[0]
     column = sig.in_band(stepped - sig.tau_nominal)[:, :, None]
+    # beside it, one delay of the torque shared by the joints: the force of a step logged with the positions after
+    # it is one step behind its row (-d tau/dt, the time_delay candidate's column)
+    rate = np.concatenate(
+        [np.gradient(stepped[sig.record == i], sig.time[sig.record == i], axis=0) for i in np.unique(sig.record)]
+    )
+    delay = sig.in_band(-rate * sig.actuated)[:, :, None]  # of the stepped torque: its inertia's rate too
     power = np.mean(residual**2, axis=0)
     weights = np.where((inertia != 0) & (power > 0), 1.0 / np.where(power > 0, power, 1.0), 0.0)
-    fit = fit_columns(column, residual, weights, record=sig.record, used=sig.used)
-    scale, std = float(fit.coef[0]), float(np.sqrt(max(fit.cov[0, 0], 0.0)))
-    left = residual - scale * column[:, :, 0]
+    both = np.concatenate([column, delay], axis=2)
+    fit = fit_columns(both, residual, weights, record=sig.record, used=sig.used)
+    (scale, lag), (std, lag_std) = fit.coef, np.sqrt(np.clip(np.diag(fit.cov), 0.0, None))
+    left = residual - np.einsum("knp,p->kn", both, fit.coef)
     share = 1.0 - float(np.sum(weights * np.sum(left**2, axis=0)) / np.sum(weights * np.sum(residual**2, axis=0)))
     fits = abs(scale - 1.0) <= STEP_SCALE_BAND and scale >= STEP_MIN_Z * std
+    read = bool(fits if asked is None else asked)
+    h = float(plant.mj_model.opt.timestep)
     return {
-        "read": bool(fits if asked is None else asked),
+        "read": read,
         "asked": asked,
         "integrator": integrator_name(plant.mj_model),
-        "timestep_s": float(plant.mj_model.opt.timestep),
+        "timestep_s": h,
         "inertia": _per_joint(plant.joint_names, inertia),
-        "scale": scale,
-        "scale_std": std,
+        "scale": float(scale),
+        "scale_std": float(std),
         "share": share,
+        "torque_lag_s": float(lag),
+        "torque_lag_std_s": float(lag_std),
+        # the positions logged after each step beside the force of that step: the torque a step behind its row
+        "positions_after_step": bool(
+            read and abs(lag - h) <= STEP_LAG_BAND * h + STEP_MIN_Z * lag_std and lag >= STEP_MIN_Z * lag_std
+        ),
     }
 
 

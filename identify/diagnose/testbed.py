@@ -48,6 +48,7 @@ __all__ = [
     "ARMS",
     "IN_VOCABULARY",
     "OUT_OF_VOCABULARY",
+    "SERVO_ONLY",
     "SYSTEMS",
     "Injected",
     "TestbedSystem",
@@ -450,6 +451,7 @@ def servo_log(
     effects: Sequence[Injected] = (),
     max_hz: float = 1.0,
     rate_hz: float | None = None,
+    positions: str = "before",
     source: str = "servo_log",
 ) -> tuple[Plant, Dataset]:
     """A log of a servo-driven model as MuJoCo users write one (a Menagerie arm as it comes): its own position
@@ -464,6 +466,8 @@ def servo_log(
         center, amplitude: (nv,) the pose the targets swing about and each joint's multi-sine amplitude [rad].
         effects: hidden in the simulated copy (`MODEL_EFFECTS`) or in what the sensors report (`SENSOR_EFFECTS`).
         rate_hz: samples per second, a whole fraction of the physics rate (None: one per physics step).
+        positions: `before` the step (with its time), or `after` it (with the time after it: a loop that logs
+            `d.time`, `d.qpos` and `d.qfrc_actuator` once `mj_step` returns, whose force is the step's).
 
     Returns:
         (the nominal plant, the record).
@@ -472,6 +476,8 @@ def servo_log(
     servos = [a for a in plant.actuation.actuators if a.kind == "position" and a.gear == 1.0]
     if len(servos) != plant.nv or len({a.joint for a in servos}) != plant.nv:
         raise ValueError(f"{mjcf}: servo_log needs one position servo of gear 1 on every joint")
+    if positions not in ("before", "after"):
+        raise ValueError(f"servo_log positions {positions!r}; valid choices: after, before")
     bad = [e.effect for e in effects if e.effect not in MODEL_EFFECTS + SENSOR_EFFECTS]
     if bad:
         valid = ", ".join(MODEL_EFFECTS + SENSOR_EFFECTS)
@@ -490,11 +496,13 @@ def servo_log(
         for i in range(every):
             target = np.asarray(center) + _reference(float(d.time), freqs, phases, amps)[0]
             d.ctrl[:] = target[joint_of]
-            if i == 0:
+            if i == 0 and positions == "before":
                 time[k], q_log[k] = d.time, d.qpos
             mujoco.mj_step(m, d)
             if i == 0:
                 tau_log[k] = d.qfrc_actuator
+                if positions == "after":
+                    time[k], q_log[k] = d.time, d.qpos
         reason = unstable(d, plant.joint_names)
         if reason:
             raise ModelError(f"servo_log {plant.name}: the simulation diverged at t = {time[k]:.3f} s{reason}")
@@ -732,34 +740,44 @@ def arm_effect_table(robots: str | Path, folder: str | Path, seeds: range = rang
         path = torque_driven(Path(robots) / f"{arm}.xml", folder)
         for effects in arm_cases(arm):
             runs = [diagnose_case(arm, effects, seed, mjcf=path, settings=settings) for seed in seeds]
-            row = _row(arm, effects, "named" if effects else "clean", *runs[0])
-            truth = effects[0] if effects else None
-            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
-            row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
-            row["seeds"] = list(seeds)
-            rows.append(row)
+            rows.append(_seeds_row(arm, effects, runs, seeds))
     return rows
+
+
+# two more Menagerie arms logged through their own servos (`servo_log_table`), clean only: the iiwa14 (servo kv
+# 200 on every joint, implicitfast at 2 ms) and the SO-ARM100 (frictionloss 0.1 N m, MuJoCo's default Euler, which
+# takes nothing of its servos implicitly)
+SERVO_ONLY: dict[str, TestbedSystem] = {
+    "iiwa14": _arm(_SEVEN_AMPLITUDE, (0.0,) * 7, (0.0,) * 7, _SEVEN_NOISE, (0.0, 0.3, 0.0, -1.5, 0.0, 1.0, 0.0)),
+    "so_arm100": _arm(
+        (0.4, 0.3, 0.4, 0.4, 0.5, 0.3), (0.0,) * 6, (0.0,) * 6, (0.005,) * 6, (0.0, -1.5, 1.5, 0.0, 0.0, 0.8)
+    ),
+}
 
 
 def servo_log_cases(arm: str) -> list[list[Injected]]:
     """The effects `servo_log_table` hides in an arm of `ARMS` (the clean case first): in the plant and in the
-    sensor, on joints from the base to the wrist (those of `arm_cases`)."""
+    sensor, on joints from the base to the wrist (those of `arm_cases`); the clean case alone for `SERVO_ONLY`."""
+    if arm in SERVO_ONLY:
+        return [[]]
     cases = arm_cases(arm)
     return [cases[0], cases[1], cases[4], cases[6]]  # clean, viscous, armature, torque gain
 
 
 def servo_log_table(robots: str | Path, seeds: range = range(2)) -> list[dict[str, Any]]:
-    """One row per arm of `ARMS` and case of `servo_log_cases`: each arm as it comes in `robots`/<arm>.xml,
-    through its own position servos at its own integrator and step, logged as MuJoCo users log it
-    (`servo_log`: 10 s to train on, 5 s to validate, 500 Hz), diagnosed with the step inertia read from the
-    data (`diagnose(mujoco_steps=None)`); `z_seeds` and `ok_seeds` as in `arm_effect_table`, `steps_seeds` the
-    reading of each seed (read, scale, its std)."""
+    """One row per arm of `ARMS` and `SERVO_ONLY` and case of `servo_log_cases`: each arm as it comes in
+    `robots`/<arm>.xml, through its own position servos at its own integrator and step, logged as MuJoCo users
+    log it (`servo_log`: 10 s to train on, 5 s to validate, 500 Hz), diagnosed with the step read from the data
+    (`diagnose(mujoco_steps=None)`); `z_seeds` and `ok_seeds` as in `arm_effect_table`, `steps_seeds` the
+    reading of each seed (read, scale, its std, positions after the step; None where the step adds nothing to
+    read). Each arm is logged clean with the positions after each step too (`servo_log(positions="after")`)."""
     from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
 
     rows = []
-    for arm, settings in ARMS.items():
+    for arm, settings in {**ARMS, **SERVO_ONLY}.items():
         path = Path(robots) / f"{arm}.xml"
-        for effects in servo_log_cases(arm):
+        cases = [(effects, "before") for effects in servo_log_cases(arm)] + [([], "after")]
+        for effects, positions in cases:
             runs = []
             for seed in seeds:
                 rngs = np.random.default_rng(seed).spawn(2)
@@ -769,6 +787,7 @@ def servo_log_table(robots: str | Path, seeds: range = range(2)) -> list[dict[st
                     "sigma_tau": settings.sigma_tau,
                     "effects": effects,
                     "rate_hz": 500.0,
+                    "positions": positions,
                 }
                 plant, train = servo_log(path, rng=rngs[0], duration_s=10.0, **kw)  # type: ignore[arg-type]
                 _, val = servo_log(path, rng=rngs[1], duration_s=5.0, source="servo_log_validation", **kw)  # type: ignore[arg-type]
@@ -776,17 +795,15 @@ def servo_log_table(robots: str | Path, seeds: range = range(2)) -> list[dict[st
                     plant, [train], [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}
                 )
                 runs.append((plant, dg))
-            row = _row(arm, effects, "named" if effects else "clean", *runs[0])
-            truth = effects[0] if effects else None
-            row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
-            row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
+            row = _seeds_row(arm, effects, runs, seeds)
+            if positions == "after":
+                row["truth"] += " (positions logged after each step)"
             row["steps_seeds"] = [
                 None
                 if dg.info["mujoco_steps"] is None
-                else [dg.info["mujoco_steps"][k] for k in ("read", "scale", "scale_std")]
+                else [dg.info["mujoco_steps"][k] for k in ("read", "scale", "scale_std", "positions_after_step")]
                 for _, dg in runs
             ]
-            row["seeds"] = list(seeds)
             rows.append(row)
     return rows
 
@@ -801,6 +818,8 @@ def servo_log_markdown(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         steps = r["steps_seeds"][0]
         read = "-" if steps is None else f"{'yes' if steps[0] else 'no'}: {steps[1]:.4f} ± {steps[2]:.1g}"
+        if steps is not None and steps[3]:
+            read += ", positions after the step"
         value = "-" if r["value"] is None else f"{r['value']:.4g} ± {r['std']:.2g}"
         z = "-" if r.get("z") is None else f"{r['z']:+.1f}"
         oks = f"{sum(r['ok_seeds'])} of {len(r['ok_seeds'])}"
@@ -817,6 +836,17 @@ def servo_log_markdown(rows: list[dict[str, Any]]) -> str:
         f"of the truth and {sum(abs(z) <= 2 for z in zs)} within 2.",
     ]
     return "\n".join(lines)
+
+
+def _seeds_row(system: str, effects: list[Injected], runs: list[tuple[Plant, Any]], seeds: range) -> dict[str, Any]:
+    """The row of the first seed's (plant, diagnosis), with in `z_seeds` the (value - truth) / std of every seed
+    where the hidden effect is named first (None where it is not) and in `ok_seeds` whether each is as expected."""
+    row = _row(system, effects, "named" if effects else "clean", *runs[0])
+    truth = effects[0] if effects else None
+    row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
+    row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
+    row["seeds"] = list(seeds)
+    return row
 
 
 def _row(system: str, effects: list[Injected], expect: str, plant: Plant, dg: Any) -> dict[str, Any]:
