@@ -11,7 +11,9 @@ sample is the step's mean, v + dv / 2):
                                                                         `eulerdamp`)
 
 with h the model's step, kv = -b2 gear^2 the joint-torque velocity gain of a servo the integrator takes
-implicitly (the implicit integrators), 0 otherwise. RK4 integrates the continuous equations: nothing. On the
+implicitly (the implicit integrators), 0 otherwise; the Coriolis and centrifugal torque is that of the step's
+start velocity (Euler, implicitfast) or, linearised, of its end (implicit), and a frictionloss ramp sees the
+solver's acceleration (`Stepping.friction_velocity`). RK4 integrates the continuous equations: nothing. On the
 Menagerie Panda (its position servos, kv 450 on joint 1, damping 1, implicitfast at 2 ms) this is an inertia of
 0.901 kg m^2 per joint 1 and 2, nine times the rotor inertia the model gives it; a diagnosis that reads such a
 log as a robot's names that much armature on every joint (`identify.diagnose`: `mujoco_steps`).
@@ -45,43 +47,79 @@ class Stepping:
         gain: (nv,) the velocity gains the integrator takes at the step's end, kv + D where it takes them
             [N m s/rad or N s/m].
         inertia: (nv,) what the step adds to each joint's logged torque per unit acceleration, h gain - h D / 2.
+        coriolis_shift: where in the step the integrator takes the Coriolis and centrifugal torque, from the
+            step's mean velocity, times its acceleration [s]: -h / 2 (at its start: Euler, implicitfast) or
+            +h / 2 (at its end: implicit, which takes their velocity derivative too).
     """
 
     timestep: float
     gain: np.ndarray
     inertia: np.ndarray
+    coriolis_shift: float = 0.0
+
+    def coriolis_change(
+        self, plant: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, *, derivatives: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(N, nv) bias(q, dq + coriolis_shift ddq) - bias(q, dq): the Coriolis torque of the step's velocity
+        against that of the states a log gives (dq the step's mean velocity), and its derivatives in q, dq and
+        ddq (3, N, nv, nv) where asked. Zero where a single joint turns about a fixed axis."""
+        pm = plant.pin_model
+        data = pm.createData()
+        zero = np.zeros(plant.nv)
+        used = dq + self.coriolis_shift * ddq
+        out = np.empty_like(dq)
+        D = np.zeros((3, *dq.shape, plant.nv)) if derivatives else None
+        for k in range(len(q)):
+            if D is None:
+                out[k] = pin.rnea(pm, data, q[k], used[k], zero) - pin.rnea(pm, data, q[k], dq[k], zero)
+                continue
+            dq_used, dv_used, _ = (np.array(x) for x in pin.computeRNEADerivatives(pm, data, q[k], used[k], zero))
+            at_used = data.tau.copy()
+            dq_mean, dv_mean, _ = (np.array(x) for x in pin.computeRNEADerivatives(pm, data, q[k], dq[k], zero))
+            out[k] = at_used - data.tau
+            D[0, k], D[1, k], D[2, k] = dq_used - dq_mean, dv_used - dv_mean, self.coriolis_shift * dv_used
+        return out, D
 
     def friction_velocity(
         self, plant: Plant, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, *, jacobian: bool = False
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """(N, nv) the velocity a frictionloss ramp sat((v + lead a) / vt) of the compiled model sees in a
         step, as a velocity of the states a log gives (dq: the step's mean velocity, ddq its acceleration), and
-        its derivative in ddq (N, nv, nv) where `jacobian`.
+        where `jacobian` its derivatives in q and in ddq (2, N, nv, nv) (in dq: the identity).
 
         MuJoCo's constraint solver takes the step's start velocity v = dq - h ddq / 2 and its own acceleration
         M^-1 (f + lambda), while the integrator then applies (M + h gain)^-1 (f + lambda): the solver's
         acceleration is ddq + h M^-1 (gain ddq). So the ramp's argument is dq - h ddq / 2 + lead h M^-1 (gain
         ddq) + lead ddq: the xArm7's last joint (inertia 1.4e-4 kg m^2, servo kv 200 at 2 ms) sees a thousand
         times its own acceleration there, and a log of it is matched to 0.0004 N m where the plain ramp is off by
-        0.86 N m.
+        0.86 N m. M^-1 x is Pinocchio's forward dynamics at rest, aba(q, 0, x) - aba(q, 0, 0), and so is its
+        derivative in q.
         """
         h = self.timestep
         out = dq - 0.5 * h * ddq
         ramp = (plant.friction_speed > 0) & (plant.friction_lead > 0)
         coupled = bool(np.any(self.gain) and np.any(ramp))
-        jac = np.broadcast_to(-0.5 * h * np.eye(plant.nv), (len(dq), plant.nv, plant.nv)).copy() if jacobian else None
+        jac = np.zeros((2, len(dq), plant.nv, plant.nv)) if jacobian else None
+        if jac is not None:
+            jac[1] = -0.5 * h * np.eye(plant.nv)
         if not coupled:
             return out, jac
         pm = plant.pin_model
         data = pm.createData()
         lead = np.where(ramp, plant.friction_lead, 0.0)
+        zero = np.zeros(plant.nv)
         for k in range(len(q)):
-            upper = pin.computeMinverse(pm, data, np.asarray(q[k], dtype=float))
+            qk = np.asarray(q[k], dtype=float)
+            upper = pin.computeMinverse(pm, data, qk)
             m_inv = np.triu(upper) + np.triu(upper, 1).T  # Pinocchio fills the upper triangle
             coupling = h * lead[:, None] * m_inv * self.gain[None, :]  # d(extra)/d(ddq)
             out[k] += coupling @ ddq[k]
             if jac is not None:
-                jac[k] += coupling
+                jac[1, k] += coupling
+                load = self.gain * ddq[k]
+                with_load = np.array(pin.computeABADerivatives(pm, data, qk, zero, load)[0])
+                at_rest = np.array(pin.computeABADerivatives(pm, data, qk, zero, zero)[0])
+                jac[0, k] = h * lead[:, None] * (with_load - at_rest)
         return out, jac
 
 
@@ -119,7 +157,13 @@ def stepping_of(plant: Plant) -> Stepping | None:
     if actuator_implicit:
         for a in plant.actuation.actuators:
             gain[a.joint] -= float(a.bias[2]) * a.gear**2  # b2 <= 0 on a servo: a damper, kv = -b2 gear^2
-    return Stepping(timestep=h, gain=gain, inertia=h * gain - 0.5 * h * damping)
+    coriolis_implicit = int(m.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
+    return Stepping(
+        timestep=h,
+        gain=gain,
+        inertia=h * gain - 0.5 * h * damping,
+        coriolis_shift=(0.5 if coriolis_implicit else -0.5) * h,
+    )
 
 
 def step_inertia(plant: Plant) -> np.ndarray:

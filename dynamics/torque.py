@@ -58,8 +58,11 @@ def joint_torque(
         D[0, k], D[1, k], D[2, k] = d_q, d_v, d_a  # copies: Pinocchio hands back views of `data`
     tau += plant.damping * dq + plant.stiffness * (q - plant.springref)
     stepping = plant.stepping
+    coriolis_D = None
     if stepping is not None:
         tau += stepping.inertia * ddq
+        change, coriolis_D = stepping.coriolis_change(plant, q, dq, ddq, derivatives=D is not None)
+        tau += change
     friction_dq, friction_jac = dq, None
     if coulomb and stepping is not None and np.any(plant.frictionloss > 0):
         friction_dq, friction_jac = stepping.friction_velocity(plant, q, dq, ddq, jacobian=D is not None)
@@ -70,6 +73,8 @@ def joint_torque(
         D[1] += np.diag(plant.damping)
         if stepping is not None:
             D[2] += np.diag(stepping.inertia)
+        if coriolis_D is not None:
+            D += coriolis_D
         if coulomb and np.any(plant.friction_speed > 0):  # on a declared ramp: slope Fc / vt
             ramp = plant.friction_speed > 0
             width = np.where(ramp, plant.friction_speed, 1.0)
@@ -78,8 +83,9 @@ def joint_torque(
             idx = np.arange(plant.nv)
             D[1][:, idx, idx] += slope
             D[2][:, idx, idx] += slope * plant.friction_lead
-            if friction_jac is not None:  # the step's velocity: d friction_dq / d ddq
-                D[2] += slope[:, :, None] * friction_jac
+            if friction_jac is not None:  # the step's velocity: d friction_dq / d q and d ddq
+                D[0] += slope[:, :, None] * friction_jac[0]
+                D[2] += slope[:, :, None] * friction_jac[1]
     return tau, D
 
 
