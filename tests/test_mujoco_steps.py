@@ -159,6 +159,25 @@ def test_a_log_with_the_positions_after_each_step_is_read_a_step_earlier(tmp_pat
     assert any("logged after each step" in n for n in dg.notes)
 
 
+def test_a_log_of_a_model_whose_step_adds_no_inertia_is_read_so_when_asked(tmp_path: Path) -> None:
+    """Under Euler without joint damping the step adds no inertia (MuJoCo's default integrator takes nothing of a
+    servo implicitly): nothing tells such a log from a robot's, so it is read as a robot's, and a log with the
+    positions after each step names a delay of one step; the note says what it may be, and mujoco_steps=true
+    reads each row's torque at the step before it (`no_discrepancy`)."""
+    spec = mujoco.MjSpec.from_file(str(_servo_arm(tmp_path)))
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    path = tmp_path / "euler.xml"
+    path.write_text(spec.to_xml())
+    assert not np.any(step_inertia(load_plant(path)))
+    as_robot = _diagnosed(path, 0, positions="after")
+    assert as_robot.info["mujoco_steps"] is None
+    assert {f.effect for f in as_robot.findings} == {"time_delay"}, [f.name for f in as_robot.findings]
+    assert any("time delays named at the model's physics step (2 ms" in n for n in as_robot.notes), as_robot.notes
+    asked = _diagnosed(path, 0, mujoco_steps=True, positions="after")
+    assert asked.info["mujoco_steps"]["positions_after_step"], asked.info["mujoco_steps"]
+    assert asked.verdict == "no_discrepancy", (asked.verdict, [f.name for f in asked.findings])
+
+
 def test_an_effect_hidden_in_such_a_log_is_named_at_its_size(tmp_path: Path) -> None:
     dg = _diagnosed(_servo_arm(tmp_path), 0, effects=[Injected("viscous_friction", "elbow", 0.05)])
     assert dg.info["mujoco_steps"]["read"]

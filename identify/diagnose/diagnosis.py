@@ -24,7 +24,7 @@ from dynamics.base import base_parameters
 from dynamics.errors import DataError
 from dynamics.plant import Plant, as_simulated, plant_from_xml
 from dynamics.regressor import ParameterModel
-from dynamics.stepping import as_stepped, integrator_name, step_inertia
+from dynamics.stepping import as_stepped, integrator_name, step_inertia, stepping_of
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states, state_cutoff_hz
@@ -924,6 +924,7 @@ def diagnose(
         },
         notes=[a.describe() for a in anomalies]
         + _steps_note(steps_read)
+        + _one_step_delay_notes(plant, findings, steps_read)
         + _lead_note(lead, float(min(d.dt for d in train)), float(train[0].tau_lead_s))
         + (
             [
@@ -1854,6 +1855,26 @@ def _stepped_after(simulated: Callable[[Plant], Plant], plant: Plant) -> Plant:
     return as_stepped(simulated(plant))
 
 
+def _one_step_delay_notes(plant: Plant, findings: list[Finding], reading: dict[str, Any] | None) -> list[str]:
+    """Time delays named at the model's physics step, in records not read as MuJoCo's steps with the positions
+    after each step: what a MuJoCo log that pairs each step's force with the positions after it looks like."""
+    if stepping_of(plant) is None or (reading is not None and reading["positions_after_step"]):
+        return []
+    h = float(plant.mj_model.opt.timestep)
+    at_step = [
+        f"{f.target} {f.value * 1e3:.3g} ms"
+        for f in findings
+        if f.effect == "time_delay" and np.isfinite(f.std) and abs(f.value - h) <= STEP_LAG_BAND * h + 3.0 * f.std
+    ]
+    if not at_step:
+        return []
+    return [
+        f"time delays named at the model's physics step ({h * 1e3:g} ms: {', '.join(at_step)}): a log of MuJoCo's "
+        "simulation that pairs the force of each step with the positions after it is one step late so; if these "
+        "records are such a log, diagnose.mujoco_steps=true reads each row's torque at the step before it"
+    ]
+
+
 def _steps_note(reading: dict[str, Any] | None) -> list[str]:
     """What the report says of the reading of the records as MuJoCo's steps (`_steps_reading`)."""
     if reading is None:
@@ -1895,17 +1916,19 @@ def _steps_note(reading: dict[str, Any] | None) -> list[str]:
 def _steps_reading(plant: Plant, records: list[_Record], asked: bool | None) -> dict[str, Any] | None:
     """Whether the records are read as a log of MuJoCo's own steps of `plant` (`dynamics.stepping`), and why.
 
-    None where the model's integrator adds no inertia (RK4, or no joint damping and no implicit servo damping).
-    Asked (True or False) it is what was asked; otherwise what the step changes in the nominal torque (the
-    inertia h (kv +- D / 2) of each joint, and the velocity its friction ramps see), scaled by one factor fitted
-    to the training residual in the analysis band (each joint weighted by its residual's inverse mean square),
-    must come out within `STEP_SCALE_BAND` of 1 and `STEP_MIN_Z` std from 0: a log of
-    MuJoCo's Panda through its own servos at 2 ms (0.9 kg m^2 on joints 1 and 2) does, and so does one of its
-    motor-driven copy (h D / 2 = 0.001 kg m^2 on every joint); a robot would need rotor inertias off the model's
-    by that much, in that joint-by-joint ratio.
+    None under RK4, and where the model's integrator adds no inertia (no joint damping and no implicit servo
+    damping) unless it is asked. Asked (True or False) it is what was asked; otherwise what the step changes in
+    the nominal torque (the inertia h (kv +- D / 2) of each joint, the Coriolis torque's velocity and the velocity
+    its friction ramps see), scaled by one factor fitted to the training residual in the analysis band (each
+    joint weighted by its residual's inverse mean square), must come out within `STEP_SCALE_BAND` of 1 and
+    `STEP_MIN_Z` std from 0: a log of MuJoCo's Panda through its own servos at 2 ms (0.9 kg m^2 on joints 1 and
+    2) does, and so does one of its motor-driven copy (h D / 2 = 0.001 kg m^2 on every joint); a robot would
+    need rotor inertias off the model's by that much, in that joint-by-joint ratio. Beside it one torque delay
+    shared by the joints is fitted: at one physics step (to `STEP_LAG_BAND` of it and `STEP_MIN_Z` std) the
+    positions were logged after each step (`positions_after_step`).
     """
     inertia = step_inertia(plant)
-    if not np.any(inertia):
+    if stepping_of(plant) is None or not (np.any(inertia) or asked):
         return None
     sig = stack_signals([r.signals for r in records])
     residual = sig.residual
@@ -1919,7 +1942,8 @@ def _steps_reading(plant: Plant, records: list[_Record], asked: bool | None) -> 
     )
     delay = sig.in_band(-rate * sig.actuated)[:, :, None]  # of the stepped torque: its inertia's rate too
     power = np.mean(residual**2, axis=0)
-    weights = np.where((inertia != 0) & (power > 0), 1.0 / np.where(power > 0, power, 1.0), 0.0)
+    stepped_joints = inertia != 0 if np.any(inertia) else np.ones(plant.nv, bool)  # none: asked, every joint
+    weights = np.where(stepped_joints & (power > 0), 1.0 / np.where(power > 0, power, 1.0), 0.0)
     both = np.concatenate([column, delay], axis=2)
     fit = fit_columns(both, residual, weights, record=sig.record, used=sig.used)
     (scale, lag), (std, lag_std) = fit.coef, np.sqrt(np.clip(np.diag(fit.cov), 0.0, None))
