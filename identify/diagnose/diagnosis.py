@@ -646,7 +646,9 @@ def diagnose(
         mujoco_steps: the records are a log of MuJoCo's own simulation of the model at its step (positions and the
             actuator force of each step), whose integrator adds an inertia to the logged torque
             (`dynamics.stepping`): read them so (True), as a robot's (False), or so where that inertia, at its
-            size, explains most of the training residual (None: `_steps_reading`).
+            size, fits the training residual (None: one factor within 1 +- `STEP_SCALE_BAND` and `STEP_MIN_Z` std
+            from 0, `_steps_reading`; an armature change of that size on every joint would read the same, and
+            the note says so).
 
     Returns:
         The diagnosis (see `Diagnosis`).
@@ -674,8 +676,8 @@ def diagnose(
         plant = as_stepped(plant)
         if steps_read["positions_after_step"]:  # each row's torque is the step before it's: read it there
             h = steps_read["timestep_s"]
-            train = [dataclasses.replace(d, tau_lead_s=d.tau_lead_s - h) for d in train]
-            validation = [dataclasses.replace(d, tau_lead_s=d.tau_lead_s - h) for d in validation]
+            train = [_a_step_earlier(d, h, derivatives) for d in train]
+            validation = [_a_step_earlier(d, h, derivatives) for d in validation]
         tr = _records(plant, train, derivatives, options, band_hz)
     rest = np.zeros((len(tr), plant.nv))  # each training record's angle offset, found before the selection
     if record_joint_offsets and len(tr) > 1:
@@ -924,6 +926,14 @@ def diagnose(
         },
         notes=[a.describe() for a in anomalies]
         + _steps_note(steps_read)
+        + (
+            [
+                "diagnose.mujoco_steps=true: the model integrates with RK4, which puts nothing of its step into a log "
+                "of its simulation; the records are read as they are"
+            ]
+            if mujoco_steps and steps_read is None
+            else []
+        )
         + _one_step_delay_notes(plant, findings, steps_read)
         + _lead_note(lead, float(min(d.dt for d in train)), float(train[0].tau_lead_s))
         + (
@@ -1864,7 +1874,10 @@ def _one_step_delay_notes(plant: Plant, findings: list[Finding], reading: dict[s
     at_step = [
         f"{f.target} {f.value * 1e3:.3g} ms"
         for f in findings
-        if f.effect == "time_delay" and np.isfinite(f.std) and abs(f.value - h) <= STEP_LAG_BAND * h + 3.0 * f.std
+        if f.effect == "time_delay"
+        and np.isfinite(f.std)
+        and f.std <= STEP_LAG_BAND * h  # determined to a quarter of a step, and there
+        and abs(f.value - h) <= STEP_LAG_BAND * h + 2.0 * f.std
     ]
     if not at_step:
         return []
@@ -1886,7 +1899,12 @@ def _steps_note(reading: dict[str, Any] | None) -> list[str]:
         f"explains {reading['share']:.1%} of it"
     )
     if reading["read"]:
-        why = "as asked (diagnose.mujoco_steps=true)" if reading["asked"] else fitted
+        why = (
+            "as asked (diagnose.mujoco_steps=true)"
+            if reading["asked"]
+            else f"{fitted}; an armature change of that size on every joint would fit these data the same way, "
+            "and a robot's log should be diagnosed with diagnose.mujoco_steps=false"
+        )
         if reading["positions_after_step"]:
             why += (
                 f"; the positions were logged after each step, beside the force of that step (the torque "
@@ -1910,6 +1928,25 @@ def _steps_note(reading: dict[str, Any] | None) -> list[str]:
         ]
         if abs(reading["scale"] - 1.0) <= STEP_SCALE_BAND
         else []
+    )
+
+
+def _a_step_earlier(data: Dataset, h: float, derivatives: str) -> Dataset:
+    """`data` with each row's torque read with the states `h` earlier: a log that pairs each step's force with
+    the positions after the step. States derived from the angles are evaluated there (`tau_lead_s`); states the
+    record gives (`given`, `simulator`: a long log the harness thinned, whose `tau_lead_s` the filters ignore) are
+    interpolated there, first row held. The torque is left as logged: interpolating it would colour its noise."""
+    if derivatives not in ("given", "simulator"):
+        return dataclasses.replace(data, tau_lead_s=data.tau_lead_s - h)
+
+    def earlier(x: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(data.time - h, data.time, col) for col in x.T]).reshape(x.shape)
+
+    return dataclasses.replace(
+        data,
+        q=earlier(data.q),
+        dq=None if data.dq is None else earlier(data.dq),
+        ddq=None if data.ddq is None else earlier(data.ddq),
     )
 
 
