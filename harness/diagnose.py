@@ -487,6 +487,8 @@ def _final_fit_entry(final: Diagnosis, mjcf_name: str, datasets: Sequence[Datase
         # each record's own zeros where they were fitted as nuisances (diagnose.record_offsets / record_joint_offsets)
         "record_offsets": final.info["record_offsets"],
         "record_joint_offsets": final.info["record_joint_offsets"],
+        # whether every record, read together, is a log of MuJoCo's own steps (`diagnose.mujoco_steps`)
+        "mujoco_steps": final.info["mujoco_steps"],
         "note": (
             "the same diagnosis fitted on every record, the validation ones included: the model for new data of "
             "this robot. Its figures would be in-sample, so none is reported; the gain on data the fit never saw "

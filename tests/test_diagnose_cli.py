@@ -513,6 +513,22 @@ def test_record_joint_offsets_reach_the_diagnosis(
     ]
 
 
+def test_mujoco_steps_reaches_both_fits(csv_files: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # asked outright, the reading reaches the training fit and the final fit on every record, and both say it
+    seen: list[object] = []
+
+    def spy(*args: object, **kwargs: object) -> object:
+        seen.append(kwargs["mujoco_steps"])
+        return original(*args, **kwargs)
+
+    original = cli.diagnose
+    monkeypatch.setattr(cli, "diagnose", spy)
+    payload = cli.run(_config(csv_files, tmp_path, "diagnose.recording=false", "diagnose.mujoco_steps=true"))
+    assert seen == [True, True]
+    assert payload["info"]["mujoco_steps"]["read"] and payload["info"]["mujoco_steps"]["asked"] is True
+    assert payload["final_fit"]["mujoco_steps"]["read"]
+
+
 def test_the_report_lists_each_training_records_angle_zero() -> None:
     # the recording's findings document carries each training record's angle offset with its std (a nuisance,
     # not a finding), and nothing of the kind where none was fitted
