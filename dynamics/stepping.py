@@ -91,8 +91,8 @@ class Stepping:
         M^-1 (f + lambda), while the integrator then applies (M + h gain)^-1 (f + lambda): the solver's
         acceleration is ddq + h M^-1 (gain ddq). So the ramp's argument is dq - h ddq / 2 + lead h M^-1 (gain
         ddq) + lead ddq: the xArm7's last joint (inertia 1.4e-4 kg m^2, servo kv 200 at 2 ms) sees a thousand
-        times its own acceleration there, and a log of it is matched to 0.0004 N m where the plain ramp is off by
-        0.86 N m. M^-1 x is Pinocchio's forward dynamics at rest, aba(q, 0, x) - aba(q, 0, 0), and so is its
+        times its own acceleration there, and a log of it is matched to round-off where the plain ramp is off by
+        0.86 N m RMS. M^-1 x is Pinocchio's forward dynamics at rest, aba(q, 0, x) - aba(q, 0, 0), and so is its
         derivative in q.
         """
         h = self.timestep
@@ -110,16 +110,19 @@ class Stepping:
         zero = np.zeros(plant.nv)
         for k in range(len(q)):
             qk = np.asarray(q[k], dtype=float)
-            upper = pin.computeMinverse(pm, data, qk)
-            m_inv = np.triu(upper) + np.triu(upper, 1).T  # Pinocchio fills the upper triangle
+            if jac is None:
+                upper = pin.computeMinverse(pm, data, qk)
+                m_inv = np.triu(upper) + np.triu(upper, 1).T  # Pinocchio fills the upper triangle
+            else:  # the derivatives give M^-1 whole as d aba / d tau
+                with_load, _, m_inv = (
+                    np.array(x) for x in pin.computeABADerivatives(pm, data, qk, zero, self.gain * ddq[k])
+                )
+                at_rest = np.array(pin.computeABADerivatives(pm, data, qk, zero, zero)[0])
+                jac[0, k] = h * lead[:, None] * (with_load - at_rest)
             coupling = h * lead[:, None] * m_inv * self.gain[None, :]  # d(extra)/d(ddq)
             out[k] += coupling @ ddq[k]
             if jac is not None:
                 jac[1, k] += coupling
-                load = self.gain * ddq[k]
-                with_load = np.array(pin.computeABADerivatives(pm, data, qk, zero, load)[0])
-                at_rest = np.array(pin.computeABADerivatives(pm, data, qk, zero, zero)[0])
-                jac[0, k] = h * lead[:, None] * (with_load - at_rest)
         return out, jac
 
 

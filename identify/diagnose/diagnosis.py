@@ -24,7 +24,7 @@ from dynamics.base import base_parameters
 from dynamics.errors import DataError
 from dynamics.plant import Plant, as_simulated, plant_from_xml
 from dynamics.regressor import ParameterModel
-from dynamics.stepping import as_stepped, integrator_name, step_inertia, stepping_of
+from dynamics.stepping import as_stepped, integrator_name, stepping_of
 from dynamics.torque import joint_torque, torque_jacobian_q
 from envs.dataset import Dataset, scratch_folder
 from identify.derivatives import States, derive_states, state_cutoff_hz
@@ -1964,13 +1964,14 @@ def _steps_reading(plant: Plant, records: list[_Record], asked: bool | None) -> 
     shared by the joints is fitted: at one physics step (to `STEP_LAG_BAND` of it and `STEP_MIN_Z` std) the
     positions were logged after each step (`positions_after_step`).
     """
-    inertia = step_inertia(plant)
-    if stepping_of(plant) is None or not (np.any(inertia) or asked):
+    stepping = stepping_of(plant)
+    if stepping is None or not (np.any(stepping.inertia) or asked):
         return None
+    inertia = stepping.inertia
     sig = stack_signals([r.signals for r in records])
     residual = sig.residual
     # what the step changes in the nominal torque: its inertia, and the velocity the friction ramps see
-    stepped = joint_torque(as_stepped(plant), sig.q, sig.dq, sig.ddq)[0]
+    stepped = joint_torque(dataclasses.replace(plant, stepping=stepping), sig.q, sig.dq, sig.ddq)[0]
     column = sig.in_band(stepped - sig.tau_nominal)[:, :, None]
     # beside it, one delay of the torque shared by the joints: the force of a step logged with the positions after
     # it is one step behind its row (-d tau/dt, the time_delay candidate's column)

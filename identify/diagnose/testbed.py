@@ -28,8 +28,9 @@ enters as they write it (`lab_model_table`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -488,13 +489,14 @@ def servo_log(
     every = 1 if rate_hz is None else max(int(round(1.0 / (rate_hz * h))), 1)
     freqs, phases, amps = _multisine(rng, np.asarray(amplitude, dtype=float), max_hz)
     joint_of = np.array([a.joint for a in plant.actuation.actuators])
-    d.qpos[:] = center
+    pose = np.asarray(center, dtype=float)
+    d.qpos[:] = pose
     mujoco.mj_forward(m, d)
     n = int(round(duration_s / (every * h)))
     time, q_log, tau_log = np.zeros(n), np.zeros((n, plant.nv)), np.zeros((n, plant.nv))
     for k in range(n):
         for i in range(every):
-            target = np.asarray(center) + _reference(float(d.time), freqs, phases, amps)[0]
+            target = pose + _reference(float(d.time), freqs, phases, amps)[0]
             d.ctrl[:] = target[joint_of]
             if i == 0 and positions == "before":
                 time[k], q_log[k] = d.time, d.qpos
@@ -625,30 +627,24 @@ def diagnose_records(
     validation_s: float = 4.0,
     mjcf: str | Path | None = None,
     settings: TestbedSystem | None = None,
+    generate: Callable[..., tuple[Plant, Dataset]] | None = None,
     **kwargs: Any,
 ) -> tuple[Plant, Any]:
     """Train on one `train_s` record per entry of `per_record` (each its own multi-sine and hidden effects, such
     as a torque zero that changes between power-ups) and validate on a `validation_s` record with `validation`
-    (`mjcf`, `settings`: the nominal model and how it is excited, see `rollout`)."""
+    (`mjcf`, `settings`: the nominal model and how it is excited, see `rollout`). `generate(effects=, rng=,
+    duration_s=, source=)` makes each record instead of `rollout` (`servo_log_table`: a model's own servos)."""
     from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
 
+    if generate is None:
+        generate = partial(rollout, system, mjcf=mjcf, settings=settings)
     rngs = np.random.default_rng(seed).spawn(len(per_record) + 1)
     train = []
     for i, effects in enumerate(per_record):
         source = "testbed_train" if len(per_record) == 1 else f"testbed_train_{i}"
-        plant, data = rollout(
-            system, effects, rng=rngs[i], duration_s=train_s, source=source, mjcf=mjcf, settings=settings
-        )
+        plant, data = generate(effects=effects, rng=rngs[i], duration_s=train_s, source=source)
         train.append(data)
-    _, val = rollout(
-        system,
-        validation,
-        rng=rngs[-1],
-        duration_s=validation_s,
-        source="testbed_validation",
-        mjcf=mjcf,
-        settings=settings,
-    )
+    _, val = generate(effects=validation, rng=rngs[-1], duration_s=validation_s, source="testbed_validation")
     return plant, diagnose(
         plant, train, [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}, **kwargs
     )
@@ -771,30 +767,21 @@ def servo_log_table(robots: str | Path, seeds: range = range(2)) -> list[dict[st
     (`diagnose(mujoco_steps=None)`); `z_seeds` and `ok_seeds` as in `arm_effect_table`, `steps_seeds` the
     reading of each seed (read, scale, its std, positions after the step; None where the step adds nothing to
     read). Each arm is logged clean with the positions after each step too (`servo_log(positions="after")`)."""
-    from identify.diagnose.diagnosis import diagnose  # the generator does not need the diagnosis
-
     rows = []
     for arm, settings in {**ARMS, **SERVO_ONLY}.items():
         path = Path(robots) / f"{arm}.xml"
         cases = [(effects, "before") for effects in servo_log_cases(arm)] + [([], "after")]
         for effects, positions in cases:
-            runs = []
-            for seed in seeds:
-                rngs = np.random.default_rng(seed).spawn(2)
-                kw = {
-                    "center": settings.center,
-                    "amplitude": settings.amplitude,
-                    "sigma_tau": settings.sigma_tau,
-                    "effects": effects,
-                    "rate_hz": 500.0,
-                    "positions": positions,
-                }
-                plant, train = servo_log(path, rng=rngs[0], duration_s=10.0, **kw)  # type: ignore[arg-type]
-                _, val = servo_log(path, rng=rngs[1], duration_s=5.0, source="servo_log_validation", **kw)  # type: ignore[arg-type]
-                dg = diagnose(
-                    plant, [train], [val], rng=np.random.default_rng(0), derivative_options={"cutoff_hz": 10.0}
-                )
-                runs.append((plant, dg))
+            generate = partial(
+                servo_log,
+                path,
+                center=settings.center,
+                amplitude=settings.amplitude,
+                sigma_tau=settings.sigma_tau,
+                rate_hz=500.0,
+                positions=positions,
+            )
+            runs = [diagnose_case(arm, effects, seed, generate=generate) for seed in seeds]
             row = _seeds_row(arm, effects, runs, seeds)
             if positions == "after":
                 row["truth"] += " (positions logged after each step)"
