@@ -42,6 +42,7 @@ __all__ = [
     "load_plant",
     "load_spec",
     "mjcf_path",
+    "movable_xml",
     "own_body_parameters",
     "pinocchio_from_mujoco",
     "plant_from_model",
@@ -185,7 +186,7 @@ def load_spec(path: Path) -> mujoco.MjSpec:
             asks for the lowercase suffix.
     """
     if path.suffix == ".xml":
-        return mujoco.MjSpec.from_file(str(path))
+        return _named(mujoco.MjSpec.from_file(str(path)))
     try:
         spec = mujoco.MjSpec.from_string(path.read_text())
     except ValueError as err:
@@ -194,7 +195,38 @@ def load_spec(path: Path) -> mujoco.MjSpec:
             f"({one_line(err)}); rename it to {path.stem}.xml"
         ) from err
     spec.modelfiledir = str(path.parent)
+    return _named(spec)
+
+
+def _named(spec: mujoco.MjSpec) -> mujoco.MjSpec:
+    """`spec` with every unnamed joint and body given the name the harness calls it by (`_name`: `joint<i>`,
+    `body<i>` by its index in the compiled model), so that an edit finds it (`spec.joint(name)`); `load_plant`
+    has refused a model where such a name is another's."""
+    if all(e.name for e in (*spec.joints, *spec.bodies)):
+        return spec
+    spec.compile()
+    for kind, elements in (("joint", spec.joints), ("body", spec.bodies)):
+        for e in elements:
+            if not e.name:
+                e.name = f"{kind}{e.id}"
     return spec
+
+
+def movable_xml(spec: mujoco.MjSpec, source: Path) -> str:
+    """The MJCF text of `spec`, an edit of the model read from `source`, that compiles from any folder.
+
+    MuJoCo finds a model's mesh, height-field and texture files from the file's own folder (its `meshdir` and
+    `texturedir` relative to it): the edited text, written elsewhere (the calibrated MJCF in a run folder, a
+    variant with hidden effects in a scratch folder), would name files that are not there. Those folders are
+    written out absolute, the model's own folder where it sets none; `<include>`s are already inlined in the
+    spec. `spec` is changed so.
+    """
+    assets = [*spec.meshes, *spec.hfields, *spec.skins, *spec.textures]
+    if any(getattr(a, "file", "") for a in assets):  # a model of none keeps its text free of this machine's paths
+        base = source.resolve().parent
+        spec.meshdir = str(base / spec.meshdir)  # an absolute meshdir stays as it is
+        spec.texturedir = str(base / spec.texturedir)
+    return spec.to_xml()  # type: ignore[no-any-return]
 
 
 def load_plant(system: str | Path) -> Plant:
@@ -296,6 +328,15 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
             f"{path}: actuator(s) {acts} are in disabled group(s) {groups} (<option actuatorgroupdisable>): "
             "MuJoCo applies none of their force; enable the group or remove the actuators"
         )
+    for kind, count in ((mujoco.mjtObj.mjOBJ_JOINT, m.njnt), (mujoco.mjtObj.mjOBJ_BODY, m.nbody)):
+        listed = [_name(m, kind, i) for i in range(count)]
+        taken = [i for i in range(count) if not mujoco.mj_id2name(m, kind, i) and listed.count(listed[i]) > 1]
+        if taken:  # the harness calls an unnamed joint joint<index> (a body body<index>), and another has that name
+            what = kind.name.removeprefix("mjOBJ_").lower()
+            raise ModelError(
+                f"{path}: {what} {taken[0]} has no name and the name the harness gives it, {listed[taken[0]]!r}, is "
+                f"another {what}'s: name the {what.replace('body', 'bodie')}s"
+            )
     names = {_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)}
     clash = sorted(n for n in names if n.startswith("cmd_") and n.removeprefix("cmd_") in names)
     if clash:  # the data format's columns tau_<joint> and tau_cmd_<joint> would be one

@@ -29,7 +29,7 @@ import numpy as np
 
 from dynamics.inertia import from_mass_com_inertia
 from dynamics.mjcf import write_inertial
-from dynamics.plant import Plant, body_parameters, load_spec, plant_from_xml
+from dynamics.plant import Plant, body_parameters, load_spec, movable_xml, plant_from_xml
 from envs.sensors import SensorModel
 
 __all__ = ["HIDDEN_EFFECTS", "MJCF_EFFECTS", "SENSOR_EFFECTS", "HiddenEffect", "apply_effects"]
@@ -101,7 +101,7 @@ def apply_effects(
             _apply_mjcf(spec, plant, e)
         spec.compile()
         folder = Path(directory) if directory is not None else Path(tempfile.mkdtemp(prefix="sysid_effects_"))
-        out_plant = plant_from_xml(spec.to_xml(), f"{plant.name}_hidden", folder)
+        out_plant = plant_from_xml(movable_xml(spec, plant.path), f"{plant.name}_hidden", folder)
     return out_plant, _apply_sensor(plant, sensor, [e for e in effects if e.effect in SENSOR_EFFECTS])
 
 

@@ -565,3 +565,60 @@ def test_both_zeros_per_file_are_refused_by_their_keys(
     # the data config's flag overridden to false by the diagnose key: no conflict
     both_off = ["++data.record_offsets=true", "diagnose.record_offsets=false", "diagnose.record_joint_offsets=true"]
     cli.run(_config(csv_files, tmp_path / "ok", "diagnose.recording=false", "diagnose.final_fit=false", *both_off))
+
+
+def test_a_model_with_mesh_files_is_diagnosed_and_its_calibrated_mjcf_loads_from_the_run_folder(tmp_path: Path) -> None:
+    """Links drawn by meshes in a `meshes/` folder beside the MJCF, as Menagerie arms ship: the variant with the
+    hidden effect is written to a scratch folder and the calibrated MJCF to the run folder, and each must still find
+    the meshes (the diagnosis stopped with "Error opening file 'meshes/link.obj'" on its scratch copy of the
+    calibrated file). The mesh also weighs the link, so a model that lost it would not be the same robot."""
+    from envs.effects import apply_effects
+    from envs.sensors import SensorModel
+    from envs.simulate import simulate_open_loop
+    from excitation.designs import default_design, random_design
+    from excitation.limits import limits_for
+
+    robot = tmp_path / "robot"
+    (robot / "meshes").mkdir(parents=True)
+    corners = [(x, y, z) for z in (-0.03, 0.03) for y in (-0.03, 0.03) for x in (-0.03, 0.03)]
+    faces = ["1 2 4", "1 4 3", "5 7 8", "5 8 6", "1 5 6", "1 6 2", "3 4 8", "3 8 7", "1 3 7", "1 7 5", "2 6 8", "2 8 4"]
+    obj = "".join(f"v {x} {y} {z}\n" for x, y, z in corners) + "".join(f"f {f}\n" for f in faces)
+    (robot / "meshes" / "link.obj").write_text(obj)
+    (robot / "bot.xml").write_text(
+        '<mujoco model="bot"><compiler meshdir="meshes"/><asset><mesh name="link" file="link.obj"/></asset>'
+        '<worldbody><body name="link" pos="0 0 1"><joint name="swing" axis="0 1 0" range="-170 170"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.01" mass="0.1"/>'
+        '<geom type="mesh" mesh="link" pos="0 0 -0.3" density="4000"/></body></worldbody>'
+        '<actuator><motor joint="swing" ctrlrange="-5 5"/></actuator></mujoco>'
+    )
+    plant = load_plant(robot / "bot.xml")
+    mass = float(plant.mj_model.body_mass[1])
+    assert mass == pytest.approx(0.1 + 4000 * 0.06**3, rel=1e-6)  # the mesh found and weighed
+    sensor = SensorModel(500.0, sigma_tau=np.array([0.005]), tau_resolution=0.001, sigma_q=1.7e-5, q_resolution=2.4e-5)
+    hidden, sensor = apply_effects(
+        plant, [HiddenEffect("viscous_friction", "swing", 0.02)], sensor=sensor, directory=tmp_path / "scratch"
+    )
+    assert float(hidden.mj_model.body_mass[1]) == pytest.approx(mass, rel=1e-9)
+    limits = limits_for(plant, torque_margin=0.9, velocity=8.0, acceleration=60.0, range_margin=0.05)
+    rng_train, rng_val, rng_design = np.random.default_rng(0).spawn(3)
+    designs = [
+        default_design(plant, limits, harmonics=5, base_freq_hz=0.2, torque_driven=True),
+        random_design(plant, limits, harmonics=5, base_freq_hz=0.2, rng=rng_design, torque_driven=True),
+    ]
+    paths = []
+    for k, (design, rng, duration) in enumerate(zip(designs, (rng_train, rng_val), (10.0, 5.0), strict=True)):
+        data = simulate_open_loop(hidden, design.torque, duration_s=duration, sensor=sensor, rng=rng)
+        paths.append(tmp_path / f"log{k}.csv")
+        write_csv(data, paths[-1])
+    out = tmp_path / "out"
+    cfg = compose_config(
+        [f"system.mjcf={robot / 'bot.xml'}", f"data.path=[{paths[0]},{paths[1]}]", f"output_dir={out}"],
+        config_name="diagnose",
+    )
+    cfg.diagnose.references = None
+    result = cli.run(cfg)
+    assert result["findings"][0]["effect"] == "viscous_friction", result["findings"]
+    for name in ("bot_calibrated.xml", "bot_calibrated_all.xml"):
+        calibrated = load_plant(out / name)  # from the run folder, the meshes beside the user's model
+        assert float(calibrated.mj_model.body_mass[1]) == pytest.approx(mass, rel=1e-5)
+        assert calibrated.damping[0] == pytest.approx(0.02, rel=0.2)

@@ -368,3 +368,47 @@ def test_an_mjcf_named_with_an_upper_case_suffix_is_read_as_mujoco_compiles_it(t
     path.write_text(xml.replace("<worldbody>", '<include file="part.xml"/><worldbody>', 1))
     with pytest.raises(ModelError, match=r"M\.XML: MuJoCo reads this model's includes only .* rename it to M\.xml"):
         load_plant(path)
+
+
+_UNNAMED = """<mujoco model="unnamed"><compiler angle="radian"/><worldbody>
+  <body name="{body}" pos="0 0 1"><joint name="{joint}" axis="0 1 0" range="-2 2"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03"/>
+    <body pos="0 0 -0.3"><joint axis="0 1 0" range="-1.5 1.5" damping="0.1"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03"/></body></body></worldbody>
+  <actuator><motor joint="{joint}" ctrlrange="-10 10"/></actuator></mujoco>"""
+
+
+def test_an_unnamed_passive_joint_and_body_are_edited_by_the_names_the_harness_gives_them(tmp_path: Path) -> None:
+    """A joint with no name cannot be actuated (an actuator names its joint), so it is a passive one: the harness
+    calls it joint<i> and its body body<i>, and every edit of the model must find them by those names (the
+    calibrated MJCF and a hidden effect looked them up in the MjSpec, where they have none, and failed on None)."""
+    from envs.effects import HiddenEffect, apply_effects
+    from envs.sensors import SensorModel
+    from identify.diagnose.calibrate import Extension, calibrated_xml
+
+    path = tmp_path / "unnamed.xml"
+    path.write_text(_UNNAMED.format(body="upper", joint="shoulder"))
+    plant = load_plant(path)
+    assert plant.joint_names == ("shoulder", "joint1") and plant.body_names == ("upper", "body2")
+    zero = np.zeros(2)
+    ext = Extension(zero, np.array([0.0, 0.05]), zero, zero, zero, np.zeros(20), zero, zero, np.ones(2), zero)
+    ext.theta_delta[10] = 0.2  # 0.2 kg more on the unnamed body
+    (tmp_path / "calibrated.xml").write_text(calibrated_xml(plant, ext))
+    calibrated = load_plant(tmp_path / "calibrated.xml")
+    assert calibrated.damping[1] == pytest.approx(0.15)
+    assert calibrated.mj_model.body_mass[2] == pytest.approx(plant.mj_model.body_mass[2] + 0.2, rel=1e-5)
+    sensor = SensorModel(500.0, sigma_tau=np.array([0.01, 0.0]), tau_resolution=0.001)
+    hidden, _ = apply_effects(plant, [HiddenEffect("armature", "joint1", 0.01)], sensor=sensor, directory=tmp_path)
+    assert hidden.armature[1] == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize(("body", "joint", "taken"), [("upper", "joint1", "joint 1"), ("body2", "shoulder", "body 2")])
+def test_an_unnamed_joint_or_body_whose_harness_name_is_taken_is_refused(
+    body: str, joint: str, taken: str, tmp_path: Path
+) -> None:
+    """The harness's name for an unnamed joint (body) is another's: the data columns q_joint1 would be two
+    joints' (`sysid-run` wrote a data.csv with the column twice), so the model is refused with the fix."""
+    path = tmp_path / "clash.xml"
+    path.write_text(_UNNAMED.format(body=body, joint=joint))
+    with pytest.raises(ModelError, match=rf"{taken} has no name and the name the harness gives it, .* is another"):
+        load_plant(path)

@@ -67,7 +67,7 @@ from dynamics.inertia import (
     transform_parameters,
 )
 from dynamics.mjcf import write_inertial
-from dynamics.plant import Plant, load_spec, own_body_parameters
+from dynamics.plant import Plant, load_spec, movable_xml, own_body_parameters
 from dynamics.regressor import rigid_body_regressor
 from dynamics.sampling import random_states
 from dynamics.torque import inverse_dynamics, joint_torque
@@ -497,7 +497,7 @@ def calibrated_xml(plant: Plant, ext: Extension, *, metric: np.ndarray | None = 
     spec.compile()
     header = "<!-- Calibrated by sysid-diagnose (see identify/diagnose/calibrate.py for the mapping)."
     text = header + ("\n     " + comment.replace("--", "-") if comment else "") + " -->\n"
-    return text + spec.to_xml()
+    return text + movable_xml(spec, plant.path)
 
 
 def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) -> None:

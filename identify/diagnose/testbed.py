@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 
 from dynamics.errors import ModelError
 from dynamics.friction import applied_friction_parameters, kept_ramp
-from dynamics.plant import Plant, load_plant, load_spec
+from dynamics.plant import Plant, load_plant, load_spec, movable_xml
 from envs.dataset import Dataset
 from envs.simulate import unstable
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
@@ -273,10 +273,8 @@ def torque_driven(mjcf: str | Path, folder: str | Path) -> Path:
         act.set_to_motor()
         act.ctrlrange, act.forcerange = [lo, hi], [lo, hi]
         act.ctrllimited = act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-    base = Path(mjcf).resolve().parent
-    spec.meshdir, spec.texturedir = str(base / spec.meshdir), str(base / spec.texturedir)
     out = Path(folder) / f"{Path(mjcf).stem}_motors.xml"
-    out.write_text(spec.to_xml())
+    out.write_text(movable_xml(spec, Path(mjcf)))
     return out
 
 
