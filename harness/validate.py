@@ -130,6 +130,14 @@ def check_system(cfg: DictConfig, plant: Plant) -> None:
     effects = _value(cfg, "system.effects")
     if not isinstance(effects, ListConfig):
         raise ConfigError(f"system.effects must be a list of effect names, got {effects!r}")
+    unlimited = [a for a in plant.actuation.actuators if not math.isfinite(a.torque_limit)]
+    if unlimited and _value(cfg, "system.torque_driven") is True:
+        a = unlimited[0]  # an open-loop torque design is sized by the torque limits; tracking needs none
+        raise ConfigError(
+            f"{plant.path}: actuator {a.name!r} on joint {plant.joint_names[a.joint]!r} has no torque limit (no "
+            "ctrlrange, forcerange or actuatorfrcrange), and system.torque_driven=true (the model has unactuated "
+            "joints) excites it by open-loop torque, whose size that limit sets: give it a ctrlrange ('-5 5')"
+        )
 
 
 def _check_estimator(cfg: DictConfig) -> None:
@@ -210,13 +218,13 @@ def check_driven(plant: Plant) -> None:
             "ctrlrange='-5 5'/></actuator>"
         )
     for a in plant.actuation.actuators:
-        if a.torque_limit > 0:
-            continue
-        if a.gain == 0:
+        if a.gain == 0:  # whatever its ranges (none: an infinite limit), its ctrl moves nothing
             raise ConfigError(
                 f"{plant.path}: actuator {a.name!r} on joint {plant.joint_names[a.joint]!r} has gain 0 (gainprm): "
-                "it applies no torque, so nothing can excite the joint: give it a non-zero gain"
+                "its control applies no torque, so nothing can excite the joint: give it a non-zero gain"
             )
+        if a.torque_limit > 0:
+            continue
         ctrl = "unlimited" if a.ctrl_range is None else f"[{a.ctrl_range[0]:g}, {a.ctrl_range[1]:g}]"
         raise ConfigError(
             f"{plant.path}: actuator {a.name!r} can drive joint {plant.joint_names[a.joint]!r} one way only "

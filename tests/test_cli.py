@@ -85,6 +85,23 @@ def test_a_model_path_that_names_no_model_is_refused_by_its_key(tmp_path: Path) 
     assert not (tmp_path / "out").exists()
 
 
+def test_an_open_loop_run_of_a_motor_without_a_torque_limit_is_refused_by_name(tmp_path: Path) -> None:
+    """A passive joint makes the run open loop (system.torque_driven from the model), and its design is sized by
+    the motors' torque limits: one without any went on to infinite amplitudes, NaN controls and a misleading
+    "columns vanish" error. Tracked (every joint driven), no limit is needed and none is asked for."""
+    link = '<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03"/>'
+    arm = (
+        '<mujoco model="loose"><compiler angle="radian"/><worldbody><body pos="0 0 1"><joint name="j1" axis="0 1 0" '
+        f'range="-1.5 1.5"/>{link}<body pos="0 0 -0.3"><joint name="j2" axis="0 1 0" range="-1.5 1.5" '
+        f'damping="0.05"/>{link}</body></body></worldbody><actuator>{{motors}}</actuator></mujoco>'
+    )
+    (tmp_path / "loose.xml").write_text(arm.format(motors='<motor name="m1" joint="j1"/>'))
+    cfg = compose_config(["record=none", "system=auto", f"system.mjcf={tmp_path / 'loose.xml'}"])
+    with pytest.raises(ConfigError, match=r"actuator 'm1' on joint 'j1' has no torque limit .* give it a ctrlrange"):
+        run(cfg, output_dir=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
 def test_unknown_estimator_name_fails_before_any_work(tmp_path: Path) -> None:
     cfg = compose_config(["record=none", "estimator.name=magic"])
     with pytest.raises(ValueError, match=r"unknown estimator 'magic'; valid choices: .*ols.*wls"):
