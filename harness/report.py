@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from envs.dataset import atomic_write
-from harness.rundir import STAGING_PREFIX
+from harness.rundir import STAGING_PREFIX, failed_since_results
 
 __all__ = ["collect", "main", "report_rows", "write_report"]
 
@@ -44,7 +44,7 @@ def collect(sweep: Path) -> list[dict[str, Any]]:
     for job in sorted(set(jobs)):
         record: dict[str, Any] = {"job": str(job.relative_to(sweep)) or ".", "overrides": _overrides(job)}
         for name, kind in (("results.json", "run"), ("diagnosis.json", "diagnose")):
-            if (job / name).is_file():
+            if (job / name).is_file() and not failed_since_results(job):
                 try:
                     payload = _read_json(job / name)
                 except ValueError as err:

@@ -52,6 +52,17 @@ STAGING_PREFIX = ".staged."  # the folder a run writes its outputs into before t
 RESULTS_FILES = ("results.json", "diagnosis.json")  # what marks a finished run of each tool (sysid-run, -diagnose)
 
 
+def failed_since_results(folder: Path) -> bool:
+    """Whether the last run in `folder` failed after its results were written: a `failure.json` at least as new as
+    each results file there (a job of a sweep re-run with overwrite=true that failed before it could replace the
+    earlier run's results: those are not this sweep's)."""
+    failure = folder / "failure.json"
+    results = [folder / n for n in RESULTS_FILES if (folder / n).is_file()]
+    if not failure.is_file() or not results:
+        return False
+    return all(failure.stat().st_mtime_ns >= r.stat().st_mtime_ns for r in results)
+
+
 class RunFolderError(ValueError):
     """The run folder cannot be used: not writable, in use by another run, or holding a finished run."""
 
@@ -170,7 +181,7 @@ def _folder_override(argv: Sequence[str]) -> tuple[str, str | None]:
     """The folder key of a command line (`hydra.sweep.dir=` with -m, else `hydra.run.dir=`) and its last value
     there (None where the command line does not set it)."""
     key = "hydra.sweep.dir=" if ("-m" in argv or "--multirun" in argv) else "hydra.run.dir="
-    values = [a.split("=", 1)[1] for a in argv if a.startswith(key)]
+    values = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith(key)]  # `++key=` sets it too
     return key, values[-1] if values else None
 
 

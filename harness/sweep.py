@@ -27,14 +27,14 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from harness.rundir import RESULTS_FILES, clean_stale_temporaries
+from harness.rundir import RESULTS_FILES, clean_stale_temporaries, failed_since_results
 
 __all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
 
 
 def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
-    from harness.results import USER_ERRORS, one_line, record_failure
-    from harness.rundir import terminate_as_exit
+    from harness.results import USER_ERRORS, one_line, record_failure, write_json
+    from harness.rundir import RunFolderError, terminate_as_exit
 
     with contextlib.suppress(OSError):
         Path("/proc/self/oom_score_adj").write_text("1000")
@@ -44,6 +44,11 @@ def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
             work(cfg)
         except BaseException as err:
             message = record_failure(out, err)
+            if not isinstance(err, RunFolderError) and any((out / n).is_file() for n in RESULTS_FILES):
+                # this job's folder (the sweep's, re-run with overwrite=true) holds an earlier run's results: they
+                # stay, and the failure is recorded beside them so that the sweep counts this job as failed
+                with contextlib.suppress(OSError):
+                    write_json(out / "failure.json", {"error": f"{message} (the results here are an earlier run's)"})
             shown = one_line(err) if isinstance(err, USER_ERRORS) else message
             print(f"{label} failed: {shown}", file=sys.stderr)
             if not isinstance(err, (*USER_ERRORS, SystemExit, KeyboardInterrupt)):
@@ -93,7 +98,7 @@ def failed_jobs(sweep: Path) -> list[tuple[str, str]]:
     """(job folder, error) for every job of `sweep` (a folder with `.hydra/`) that has no results file."""
     out = []
     for job in sorted(p.parent for p in Path(sweep).rglob(".hydra")):
-        if any((job / n).is_file() for n in RESULTS_FILES):
+        if any((job / n).is_file() for n in RESULTS_FILES) and not failed_since_results(job):
             continue
         error = "no output and no failure record"
         with contextlib.suppress(OSError, ValueError, KeyError, TypeError):

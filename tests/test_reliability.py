@@ -167,8 +167,9 @@ def test_a_folder_holding_a_users_results_is_refused_without_overwrite(tmp_path:
         run(compose_config(["record=none", "system=pendulum"]), output_dir=tmp_path)
     assert (tmp_path / "results.json").read_text() == '{"mine": true}'
     assert (tmp_path / "data.csv").read_text() == "time,q\n0,0\n"
-    proc = _cli("system=pendulum", "record=none", f"hydra.run.dir={tmp_path}")
-    _one_line_error(proc, "already holds", "overwrite=true")
+    for key in ("hydra.run.dir", "++hydra.run.dir"):  # Hydra's force-add form sets the folder as well
+        proc = _cli("system=pendulum", "record=none", f"{key}={tmp_path}")
+        _one_line_error(proc, "already holds", "overwrite=true")
     assert (tmp_path / "results.json").read_text() == '{"mine": true}'
     assert not (tmp_path / ".hydra").exists()  # refused before Hydra wrote its files into the folder
     assert not (tmp_path / "failure.json").exists()  # the folder is not this run's: nothing added to it
@@ -195,9 +196,30 @@ def test_a_sweep_into_a_folder_of_finished_jobs_is_refused_before_hydra_writes(t
     (sweep / "0" / ".hydra" / "overrides.yaml").write_text("- seed=0\n")
     (sweep / "multirun.yaml").write_text("old: true\n")
     before = {p.relative_to(sweep): p.read_bytes() for p in sweep.rglob("*") if p.is_file()}
-    proc = _cli("-m", "system=pendulum", "record=none", "seed=1,2", f"hydra.sweep.dir={sweep}")
-    _one_line_error(proc, f"sweep folder {sweep} already holds finished jobs (0/results.json)", "overwrite=true")
+    for key in ("hydra.sweep.dir", "++hydra.sweep.dir"):
+        proc = _cli("-m", "system=pendulum", "record=none", "seed=1,2", f"{key}={sweep}")
+        _one_line_error(proc, f"sweep folder {sweep} already holds finished jobs (0/results.json)", "overwrite=true")
     assert {p.relative_to(sweep): p.read_bytes() for p in sweep.rglob("*") if p.is_file()} == before
+
+
+def test_a_sweep_rerun_whose_job_fails_before_it_replaces_the_old_results_counts_it_failed(tmp_path: Path) -> None:
+    """overwrite=true into a finished sweep, one job refused by a bad value before it could replace its folder's
+    results: those stay (the earlier run's), but the sweep exited 0 and listed no failure, and the report read
+    the old results as this job's."""
+    sweep = tmp_path / "sweep"
+    common = ("-m", "system=pendulum", "record=none", f"hydra.sweep.dir={sweep}")
+    assert _cli(*common, "system.periods=1,2").returncode == 0
+    old = (sweep / "1_pendulum" / "results.json").read_bytes()
+    proc = _cli(*common, "system.periods=1,-1", "overwrite=true")
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "1 of 2 job(s) failed" in proc.stderr and "system.periods must be > 0" in proc.stderr
+    assert (sweep / "1_pendulum" / "results.json").read_bytes() == old  # nothing already written is lost
+    failure = json.loads((sweep / "1_pendulum" / "failure.json").read_text())["error"]
+    assert "system.periods must be > 0" in failure and "an earlier run's" in failure
+    rows = {r["job"]: r for r in report.report_rows(report.collect(sweep))}
+    assert rows["0_pendulum"]["status"] == "ok" and rows["1_pendulum"]["status"] == "failed"
+    assert _cli(*common, "system.periods=1,2", "overwrite=true").returncode == 0  # replaced: the failure goes with it
+    assert not (sweep / "1_pendulum" / "failure.json").exists()
 
 
 @pytest.mark.parametrize(("tool", "foreign"), [("harness.run", "diagnosis.json"), ("harness.diagnose", "results.json")])
