@@ -68,25 +68,25 @@ except SystemExit as e:
 
 
 def write_file(path: Path, rows: int) -> None:
-    """A two-link record at 500 Hz in the measured-data format, with dq, written in blocks."""
+    """A two-link record at 500 Hz in the measured-data format, with dq, written in blocks: a slow motion and the
+    torque the built-in `two_link` model needs for it (its equations in the DFKI lab's form, vectorised), with
+    0.01 N m of noise. The diagnosis refuses a torque that does not follow the motion."""
+    from dynamics.plant import load_plant
+    from identify.diagnose.authors import author_torque
+    from identify.diagnose.testbed import author_params_of
+
+    params = author_params_of(load_plant("two_link"))
     header = "time,q_shoulder,q_elbow,dq_shoulder,dq_elbow,tau_shoulder,tau_elbow"
     rng = np.random.default_rng(0)
     with path.open("w") as f:
         f.write(header + "\n")
         for start in range(0, rows, 500_000):
             t = np.arange(start, min(rows, start + 500_000)) / 500.0
-            block = np.column_stack(
-                [
-                    t,
-                    np.sin(0.5 * t),
-                    np.cos(0.3 * t),
-                    0.5 * np.cos(0.5 * t),
-                    -0.3 * np.sin(0.3 * t),
-                    np.sin(t) + 0.01 * rng.standard_normal(len(t)),
-                    np.cos(t) + 0.01 * rng.standard_normal(len(t)),
-                ]
-            )
-            np.savetxt(f, block, delimiter=",", fmt="%.10g")
+            q = np.column_stack([np.sin(0.5 * t), np.cos(0.3 * t)])
+            dq = np.column_stack([0.5 * np.cos(0.5 * t), -0.3 * np.sin(0.3 * t)])
+            ddq = np.column_stack([-0.25 * np.sin(0.5 * t), -0.09 * np.cos(0.3 * t)])
+            tau = author_torque(params, q, dq, ddq) + 0.01 * rng.standard_normal(q.shape)
+            np.savetxt(f, np.column_stack([t, q, dq, tau]), delimiter=",", fmt="%.10g")
 
 
 def _stage(code: str, path: Path) -> subprocess.CompletedProcess:

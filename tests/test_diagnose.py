@@ -336,6 +336,21 @@ def test_every_torque_flipped_is_named_as_such_not_as_angles_half_a_turn_off(sys
         run_diagnosis(plant, flipped, validation)
 
 
+@pytest.mark.parametrize("what", ["noise", "another_run"])
+def test_a_torque_column_that_does_not_follow_the_motion_is_refused(what: str, tmp_path: Path) -> None:
+    """Torque columns of the right size that have nothing to do with the logged motion (white noise, or the
+    torque of another run of the arm): every check passed, the verdict was `explained` and the calibrated MJCF's
+    elbow link weighed 0.044 kg for 0.57. The clean record's columns are explained to over 0.9."""
+    plant, train, validation = simulate("two_link", [], 3, tmp_path)
+    n = train.n_samples
+    if what == "noise":
+        tau = np.random.default_rng(1).standard_normal(train.tau.shape) * train.tau.std(axis=0)
+    else:
+        tau = np.tile(validation.tau, (n // validation.n_samples + 1, 1))[:n]  # the other excitation's run, twice
+    with pytest.raises(DataError, match=r"tau_shoulder does not follow the motion: .* explain [\d.]+ % of its var"):
+        run_diagnosis(plant, dataclasses.replace(train, tau=tau), validation)
+
+
 @pytest.mark.parametrize(
     ("factor", "noise", "share"),
     [(1e-3, 0.0, r"0\.001"), (0.0, 1e-9, r"[\d.]+e-\d+"), (1e3, 0.0, "1e\\+03")],

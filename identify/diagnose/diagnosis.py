@@ -64,7 +64,7 @@ from identify.diagnose.residuals import (
 from identify.diagnose.select import SelectionOptions, Step, _flat, _span_free, fit_columns, select_effects
 from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
 from identify.diagnose.state_noise import check_state_noise, state_noise_share, state_noise_torque
-from identify.diagnose.statistics import LinearFit
+from identify.diagnose.statistics import LinearFit, correlation_time
 from identify.estimators.least_squares import safe_sigma
 
 __all__ = [
@@ -345,6 +345,12 @@ FRICTION_EXPLAINS = 0.9  # ... unless the nominal torque with a joint friction >
 # leaves room for a nominal model without the rotor inertia a geared joint reflects (a URDF's: tens of times a
 # wrist link's inertia) and still catches a factor of 1000
 TORQUE_SHARE = (0.04, 200.0)
+# a measured torque of which the nominal torque, a viscous and a Coulomb friction and a spring (each with a free
+# coefficient) explain less than this share, and less than `CHANCE_FACTOR` times what four columns explain of noise
+# by chance (4 / the record's independent samples in the band), does not follow the motion at all: noise, another
+# motion's log, a time axis not the angles'. The DFKI logs' driven joints are explained to 0.6-0.99
+UNRELATED_SHARE = 0.2
+CHANCE_FACTOR = 3.0
 SWAP_CORRELATION = 0.5  # two torques each correlated this well with the other joint's nominal torque ...
 SWAP_MARGIN = 0.2  # ... and by this much better than with their own are swapped columns
 
@@ -409,6 +415,15 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                 f"(data.columns.tau_{names[j]}), or set diagnose.check_torque_signs=false if the nominal model is "
                 "that far off"
             )
+        explained, chance = _motion_explains(a[:, j], b[:, j], signal, j)
+        if explained < UNRELATED_SHARE and explained < CHANCE_FACTOR * chance and not commanded_zero[j]:
+            raise DataError(
+                f"{src}: {column(j)} does not follow the motion: the torque the nominal model needs at {names[j]}, "
+                f"a friction and a spring, each scaled freely, explain {100 * explained:.2g} % of its variance"
+                f"{band} (noise: {100 * chance:.2g} % by chance): noise only, another joint's or another run's "
+                "column, or a time column not the angles'; give the right column in data.columns, or set "
+                "diagnose.check_torque_signs=false if the joint's torque really is unrelated to its motion"
+            )
         if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE and not _friction_explains(a[:, j], b[:, j], signal, j):
             raise DataError(
                 f"{src}: {column(j)} runs against the torque the nominal model needs at {names[j]} along the motion "
@@ -417,6 +432,21 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                 "other way round than the model's axis, negate the angle's and the velocity's scales instead; or "
                 "set diagnose.check_torque_signs=false if the motion really needs the opposite torque"
             )
+
+
+def _motion_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signals, j: int) -> tuple[float, float]:
+    """(The share of the variance of a joint's measured torque that its nominal torque, a viscous and a Coulomb
+    friction and a spring explain, each with a free coefficient; the share four such columns explain of noise by
+    chance, 4 / the independent samples, from the measured torque's correlation time.) `nominal`, `measured`:
+    (N,), centred, in the band."""
+    cols = [signal.smooth(signal.dq)[:, j], signal.smooth(np.sign(signal.dq))[:, j], signal.smooth(signal.q)[:, j]]
+    X = np.column_stack([nominal, *(c - c.mean() for c in cols)])
+    X = X[:, np.linalg.norm(X, axis=0) > 0]
+    fit = np.linalg.lstsq(X, measured, rcond=None)[0]
+    total = max(float(measured @ measured), 1e-300)
+    explained = 1.0 - float(np.sum((measured - X @ fit) ** 2)) / total
+    independent = len(measured) / correlation_time(measured, signal.record)
+    return explained, min(1.0, X.shape[1] / independent)
 
 
 def _friction_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signals, j: int) -> bool:
