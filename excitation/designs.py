@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from dynamics.actuators import as_motors
 from dynamics.errors import InfeasibleExcitationError
 from dynamics.plant import Plant
 from dynamics.torque import joint_torque
@@ -158,12 +159,14 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
 def torque_rollout(
     plant: Plant, designs: list[FourierDesign], *, periods: float = 2.0, q0: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Batched open-loop MuJoCo rollouts of torque designs from rest (`mujoco.rollout`).
+    """Batched open-loop MuJoCo rollouts of torque designs from rest (`mujoco.rollout`), each actuator made a
+    unit-gain motor (`torque_model`): the controls of every step are given in advance, where a servo's ctrl for a
+    torque depends on the state.
 
     Returns:
         q, dq: (batch, nstep, nv) joint positions [rad] and velocities [rad/s] at every physics step.
     """
-    m = plant.mj_model
+    m = torque_model(plant)
     dt = m.opt.timestep
     nstep = int(round(periods * designs[0].period_s / dt))
     t = np.arange(nstep) * dt
@@ -181,6 +184,13 @@ def torque_rollout(
     q = states[:, :, 1 : 1 + m.nq]
     dq = states[:, :, 1 + m.nq : 1 + m.nq + m.nv]
     return q, dq
+
+
+def torque_model(plant: Plant) -> mujoco.MjModel:
+    """`plant`'s model with every actuator a unit-gain motor without bias or ctrl limits (`as_motors`; force ranges
+    kept): its ctrl is the joint torque / gear whatever the actuator's own law, as an open-loop torque design is
+    applied (the simulation inverts each actuator's law at every step: `Actuation.ctrl_for_torque`)."""
+    return as_motors(plant.mj_model, plant.name, np.ones(plant.mj_model.nu, bool))
 
 
 def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, periods: float = 3.0) -> FourierDesign:

@@ -19,7 +19,7 @@ from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from excitation.criteria import conditioning
 from excitation.criteria import criterion as evaluate_criterion
-from excitation.designs import default_shape, grid, on_actuated, random_shape
+from excitation.designs import default_shape, grid, on_actuated, random_shape, torque_model
 from excitation.fourier import FourierDesign
 from excitation.limits import Limits
 
@@ -80,7 +80,7 @@ class TorqueSearch:
         self.fill = fill
         self.criterion, self.periods, self.bound = criterion, periods, 1.0 - margin
         self.criterion_points = criterion_points
-        m = plant.mj_model
+        self.mj = m = torque_model(plant)
         self.dt = float(m.opt.timestep)
         self.act = np.flatnonzero(plant.actuated)
         self.act_joint = np.array([int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)], dtype=int)
@@ -88,8 +88,8 @@ class TorqueSearch:
         self.evaluations = 0
 
     def _rollout(self, designs: list[FourierDesign]) -> tuple[np.ndarray, ...]:
-        """q, dq, ddq, tau: each (batch, nstep, nv), from rest, at every physics step."""
-        m = self.plant.mj_model
+        """q, dq, ddq, tau: each (batch, nstep, nv), from rest, at every physics step (`torque_model`)."""
+        m = self.mj
         nstep = int(round(self.periods * designs[0].period_s / self.dt)) + 1
         t = np.arange(nstep) * self.dt
         tau = np.stack([d.torque(t) for d in designs])

@@ -12,7 +12,7 @@ import pytest
 from dynamics.errors import ModelError
 from dynamics.plant import plant_from_xml
 from envs.sensors import SensorModel
-from envs.simulate import simulate_tracking
+from envs.simulate import simulate_open_loop, simulate_tracking
 from excitation.limits import limits_for
 from harness.results import summary_table
 from harness.run import simulated_motion
@@ -218,3 +218,33 @@ def test_a_broken_clearance_says_the_distance_kept(tmp_path: Path) -> None:
         motion["worst"],
     )
     assert kept is not None and float(kept.group(1)) == pytest.approx(0.041, abs=0.003), motion["worst"]
+
+
+_SERVO_ARM = """<mujoco model="servo_arm"><compiler angle="radian"/><worldbody>
+  <body name="l1" pos="0 0 1"><joint name="j1" axis="0 1 0" range="-1.5 1.5" damping="0.1"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03"/>
+    <body name="l2" pos="0 0 -0.3"><joint name="j2" axis="0 1 0" range="-1.5 1.5" damping="0.05"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.25" size="0.025"/>
+      <body name="l3" pos="0 0 -0.25"><joint name="j3" axis="0 1 0" range="-1.5 1.5" damping="0.02"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.02"/></body></body></body></worldbody>
+  <actuator><position joint="j1" kp="20" kv="1" ctrlrange="-1.5 1.5" forcerange="-4 4"/>
+    <position joint="j3" kp="5" kv="0.2" ctrlrange="-1.5 1.5" forcerange="-1 1"/></actuator></mujoco>"""
+
+
+def test_a_torque_design_for_servos_is_sized_on_the_motion_the_servos_give(tmp_path: Path) -> None:
+    """An arm with a passive joint is excited by open-loop torque; its position servos apply a torque through
+    their own law (`ctrl_for_torque`), but the design's amplitude search rolled the design out with the torque
+    as their ctrl, a target angle: it saw j3 swing 0.05 rad where the run swung 0.22, and the run broke its
+    bounds with j3's servo at its force range on half the samples. The search's motion is now the run's."""
+    from excitation.designs import default_design, torque_rollout
+
+    plant = plant_from_xml(_SERVO_ARM, "servo_arm", tmp_path)
+    limits = limits_for(plant, velocity=20.0, acceleration=200.0, range_margin=0.05)
+    design = default_design(plant, limits, harmonics=5, base_freq_hz=0.1, torque_driven=True)
+    q_search = torque_rollout(plant, [design], periods=1.0)[0][0]
+    sensor = SensorModel(1.0 / float(plant.mj_model.opt.timestep))  # noiseless, one sample per physics step
+    data = simulate_open_loop(plant, design.torque, duration_s=10.0, sensor=sensor, rng=np.random.default_rng(0))
+    n = min(len(q_search), data.n_samples)
+    assert np.max(np.abs(data.q[:n] - q_search[:n])) < 0.01 * np.ptp(data.q[:n], axis=0).max()
+    ratios = limits.ratios(data.q, np.gradient(data.q, data.time, axis=0))
+    assert max(ratios.values()) <= 1.0, ratios
