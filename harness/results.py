@@ -123,6 +123,17 @@ def one_line(err: BaseException) -> str:
     return text or type(err).__name__
 
 
+def as_interrupt(err: BaseException) -> BaseException:
+    """`err`, or the Ctrl-C it stands for: NumPy turns a KeyboardInterrupt raised while it converts a sequence into
+    `ValueError: setting an array element with a sequence`, the interrupt left in its context."""
+    seen: BaseException | None = err
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            return seen
+        seen = seen.__cause__ or seen.__context__
+    return err
+
+
 def describe_failure(err: BaseException) -> str:
     """What failed, for failure.json and the log: SIGTERM, an interrupt, or the exception's one line."""
     if isinstance(err, SystemExit) and isinstance(err.code, int) and err.code > 128:
@@ -188,7 +199,8 @@ def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
         _log_to_files(f"{job} started (pid {os.getpid()})", logging.INFO)
         try:
             result = work(cfg)
-        except BaseException as err:
+        except BaseException as raised:
+            err = as_interrupt(raised)
             message = record_failure(out, err)
             if isinstance(err, USER_ERRORS):
                 print(f"{hydra_cfg.job.name}: error: {one_line(err)}", file=sys.stderr)

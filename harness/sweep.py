@@ -33,7 +33,7 @@ __all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
 
 
 def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
-    from harness.results import USER_ERRORS, one_line, record_failure, write_json
+    from harness.results import USER_ERRORS, as_interrupt, one_line, record_failure, write_json
     from harness.rundir import RunFolderError, terminate_as_exit
 
     with contextlib.suppress(OSError):
@@ -42,7 +42,8 @@ def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
     with terminate_as_exit():
         try:
             work(cfg)
-        except BaseException as err:
+        except BaseException as raised:
+            err = as_interrupt(raised)
             message = record_failure(out, err)
             if not isinstance(err, RunFolderError) and any((out / n).is_file() for n in RESULTS_FILES):
                 # this job's folder (the sweep's, re-run with overwrite=true) holds an earlier run's results: they

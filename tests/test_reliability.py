@@ -780,6 +780,28 @@ def test_ctrl_c_ends_a_run_with_one_line_and_status_130(tmp_path: Path) -> None:
     assert not (tmp_path / LOCK_NAME).exists()
 
 
+def test_a_ctrl_c_that_numpy_turned_into_a_value_error_is_read_as_ctrl_c() -> None:
+    """Ctrl-C arriving while NumPy converts a sequence surfaces as `ValueError: setting an array element with a
+    sequence`: the Ctrl-C test above once ended with that as a one-line error and status 2."""
+    from harness.results import as_interrupt
+
+    class Stopped:
+        def __len__(self) -> int:
+            return 2
+
+        def __getitem__(self, i: int) -> float:
+            raise KeyboardInterrupt
+
+        def __float__(self) -> float:
+            raise KeyboardInterrupt
+
+    with pytest.raises(ValueError, match="setting an array element with a sequence") as caught:
+        np.zeros(3)[0] = Stopped()  # type: ignore[call-overload]
+    assert isinstance(as_interrupt(caught.value), KeyboardInterrupt)
+    other = ValueError("a value error of its own")
+    assert as_interrupt(other) is other
+
+
 def test_sigterm_while_writing_removes_the_temporary_file(tmp_path: Path) -> None:
     def write(f) -> None:  # type: ignore[no-untyped-def]
         f.write("half")
