@@ -331,9 +331,10 @@ class _TextFile:
 
 
 def _data_digest(data: Dataset) -> str:
-    """SHA-256 of a dataset's samples as read: its times, angles and torques."""
+    """SHA-256 of a dataset's samples as read: its angles and torques (not its times: a copy whose clock starts
+    elsewhere is the same motion)."""
     h = hashlib.sha256()
-    for a in (data.time, data.q, data.tau):
+    for a in (data.q, data.tau):
         h.update(np.ascontiguousarray(a, dtype=float).tobytes())
     return h.hexdigest()
 

@@ -78,7 +78,12 @@ def split_train_validation(
         if short < min_samples:
             raise DataError(
                 f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
-                f"block of at least {min_samples} samples each"
+                f"block of at least {min_samples} samples each (data.validation_fraction {validation_fraction:g} holds "
+                f"{data.n_samples - cut} out; data.min_samples {min_samples}): give a fraction between "
+                f"{min_samples / data.n_samples:.2g} and {1 - min_samples / data.n_samples:.2g}, or more data"
+                if 2 * min_samples <= data.n_samples
+                else f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
+                f"block of at least {min_samples} samples each (data.min_samples): give more data"
             )
         return Split((data.slice(0, cut),), (data.slice(cut, data.n_samples),), "time_block")
     if validation is None:

@@ -78,7 +78,11 @@ def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceMo
         files = [Path(p) for p in _as_list(spec)]
     out: dict[str, ReferenceModel] = {}
     for f in files:
-        p = load_author_model(f)
+        try:
+            p = load_author_model(f)
+        except DataError as err:
+            found = " (found beside the data: diagnose.references=auto)" if spec == "auto" else ""
+            raise DataError(f"{err}{found}; diagnose.references=null compares with none") from None
         name = "authors_" + re.sub(r"^design_.*?_model_", "", f.stem)  # design_C.1_model_2.0 -> authors_2.0
         out[name] = ReferenceModel(torque=partial(author_torque, p), accel=partial(author_accel, p))
     return out
@@ -113,13 +117,14 @@ def _data_config_folder(cfg: DictConfig) -> Path | None:
 
 def data_paths(cfg: DictConfig) -> list[Path]:
     """The data files; a data config's relative paths are relative to that config's own folder, a path given on
-    the command line to the current directory. A pattern (`logs/*.csv`) stands for its files in name order."""
+    the command line to the current directory. A pattern (`logs/*.csv`) stands for its files in name order; a
+    file that exists under the name as written (`run[1].csv`) is that file, not a pattern."""
     folder = _data_config_folder(cfg)
     out: list[Path] = []
     for item in _as_list(cfg.data.path):
         p = Path(item).expanduser()
         p = p if p.is_absolute() or folder is None else (folder / p).resolve()
-        if glob.has_magic(str(p)):  # a pattern (logs/*.csv): its files, in name order
+        if glob.has_magic(str(p)) and not p.exists():  # a pattern (logs/*.csv): its files, in name order
             found = sorted(Path(f) for f in glob.glob(str(p)) if Path(f).is_file())
             if not found:
                 raise DataError(f"{p}: the pattern matches no file")
@@ -129,21 +134,15 @@ def data_paths(cfg: DictConfig) -> list[Path]:
     return out
 
 
-def _with_torque_lead(datasets: list[Dataset], lead: float, derivatives: str) -> list[Dataset]:
+def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
     """The records with `data.tau_lead_s` set: the torque logged at row k acted over an interval centred `lead`
     later (half a sample where a controller logs its command at the start of a zero-order hold).
 
     Raises:
-        ConfigError: a lead of a sample or more of some file (the file's rows are then not the torque's), or a
-            lead with states the file gives (`diagnose.derivatives=given`: they cannot be moved to the hold's centre).
+        ConfigError: a lead of a sample or more of some file (the file's rows are then not the torque's).
     """
     if lead == 0:
         return datasets
-    if derivatives == "given":
-        raise ConfigError(
-            f"data.tau_lead_s={lead:g} s needs states derived from the angles: with diagnose.derivatives=given the "
-            "file's dq and ddq stay at the rows' instants; choose another diagnose.derivatives or leave the lead at 0"
-        )
     for d in datasets:
         if lead >= d.dt:
             raise ConfigError(
@@ -154,16 +153,26 @@ def _with_torque_lead(datasets: list[Dataset], lead: float, derivatives: str) ->
 
 
 def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
-    """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or a re-start window
-    shorter than `MIN_WINDOW_SAMPLES` of its samples (known once read)."""
+    """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or below
+    `MIN_FILTER_CYCLES` cycles over the shortest one, or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
+    samples (known once read)."""
     slowest = max(datasets, key=lambda d: d.dt)
+    shortest = min(datasets, key=lambda d: float(d.time[-1] - d.time[0]))
     nyquist = 0.5 / slowest.dt
+    lowest = MIN_FILTER_CYCLES / float(shortest.time[-1] - shortest.time[0])
     key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
     for name, value in (("diagnose.cutoff_hz", cfg.diagnose.get("cutoff_hz")), (key, _band_hz(cfg))):
         if value is not None and float(value) >= nyquist:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
                 f"{slowest.source} (sampled at {2 * nyquist:g} Hz)"
+            )
+        if value is not None and float(value) < lowest:
+            raise ConfigError(
+                f"{name}={float(value):g} Hz is below {MIN_FILTER_CYCLES} cycles over {shortest.source} "
+                f"({float(shortest.time[-1] - shortest.time[0]):.4g} s: {lowest:.3g} Hz): a low-pass that slow leaves "
+                "nothing of the motion to compare or differentiate; raise it (a few times the motion's frequencies), "
+                "or check that the time column is in seconds (a log timed in minutes lasts a sixtieth as long)"
             )
     window = float(cfg.diagnose.window_s)
     if window < MIN_WINDOW_SAMPLES * slowest.dt:
@@ -175,6 +184,7 @@ def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
 
 
 MIN_WINDOW_SAMPLES = 5  # the shortest re-start window of the simulation error, in samples of the slowest file
+MIN_FILTER_CYCLES = 5  # the slowest state filter or analysis band: this many of its cycles over the shortest file
 
 
 def _band_hz(cfg: DictConfig) -> float | None:
@@ -254,7 +264,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         max_speed=cfg.data.get("max_speed"),
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
-    datasets = _with_torque_lead(datasets, float(cfg.data.get("tau_lead_s") or 0.0), str(cfg.diagnose.derivatives))
+    datasets = _with_torque_lead(datasets, float(cfg.data.get("tau_lead_s") or 0.0))
     _check_below_nyquist(cfg, datasets)
     repairs = {  # per file: what the reader repaired (the first 100 rows of each kind)
         d.source: [{**asdict(r), "rows": list(r.rows[:100])} for r in d.meta.get("repairs", ())] for d in datasets
@@ -264,13 +274,13 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
     # at the full rate: thinning would blur a stuck or clipped torque
     anomalies = find_anomalies(datasets, plant.hinge, plant.q_range, plant.limit_margin)
-    datasets, excluded = _without_stuck_torques(datasets, anomalies)
+    validation = cfg.data.get("validation")
+    datasets, excluded = _without_stuck_torques(datasets, anomalies, _as_list(validation) if validation else [])
     if excluded:
         stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")
     reduced = _reduce(plant, datasets, derivatives, derivative_options, cfg, stage)
     if reduced is not None:
         datasets, derivatives, derivative_options = reduced
-    validation = cfg.data.get("validation")
     split = split_train_validation(
         datasets,
         validation_fraction=float(cfg.data.get("validation_fraction", 0.3)),
@@ -345,9 +355,12 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     return to_jsonable(payload)
 
 
-def _without_stuck_torques(datasets: list[Dataset], anomalies: list[Any]) -> tuple[list[Dataset], list[str]]:
+def _without_stuck_torques(
+    datasets: list[Dataset], anomalies: list[Any], validation: list[str]
+) -> tuple[list[Dataset], list[str]]:
     """The files whose torque is stuck at zero on some joint are left out of the fit (a zero reading there is
-    no measurement; fitted, it would be explained as a huge effect); an error when no file is left.
+    no measurement; fitted, it would be explained as a huge effect); an error when no file is left, or when
+    `validation` (data.validation's names) names one of them.
 
     Returns:
         The files kept, and what was left out and why (one line per file).
@@ -360,6 +373,12 @@ def _without_stuck_torques(datasets: list[Dataset], anomalies: list[Any]) -> tup
         return datasets, []
     lines = [f"{Path(src).name}: torque of {', '.join(j)}" for src, j in stuck.items()]
     kept = [d for d in datasets if d.source not in stuck]
+    for src, joints in stuck.items():
+        if any(str(name) in (src, Path(src).name, Path(src).stem) for name in validation):
+            raise DataError(
+                f"{src}: torque of {', '.join(joints)}: stuck at zero (the sensor is off, or the column is not "
+                "logged), so the file is left out, and data.validation names it: validate on another file"
+            )
     if not kept:
         raise DataError(
             f"{'; '.join(lines)}: the torque is stuck at zero (the sensor is off, or the column is not logged), "

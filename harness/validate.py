@@ -282,8 +282,9 @@ def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
 
 
 # derivative methods for measured records: `spectral` keeps an excitation's harmonics (it needs whole periods of a
-# known one) and `simulator` reads the simulator's own accelerations, which a log has not
-MEASURED_DERIVATIVES = ("butterworth", "given", "kalman")
+# known one), `simulator` reads the simulator's own accelerations and `given` a record's own dq and ddq: a log in
+# the measured-data format holds no accelerations
+MEASURED_DERIVATIVES = ("butterworth", "kalman")
 
 
 def validate_diagnose_config(cfg: DictConfig) -> None:
@@ -328,6 +329,12 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     _number(cfg, "data.tau_lead_s", low=0.0, optional=True)
     _number(cfg, "diagnose.window_s", low=0.0, low_open=True)
     _number(cfg, "diagnose.max_rows", integer=True, low=1000, optional=True)
+    if _value(cfg, "diagnose.derivatives") == "given":  # a choice of derive_states, not of a CSV log
+        raise ConfigError(
+            "diagnose.derivatives=given reads the states' rates from the data, and a log in the measured-data format "
+            "holds no accelerations (its columns: time, q_, dq_, tau_, tau_cmd_): choose "
+            f"{' or '.join(MEASURED_DERIVATIVES)}"
+        )
     _choice(cfg, "diagnose.derivatives", MEASURED_DERIVATIVES)
     effects = _value(cfg, "diagnose.effects")
     if not isinstance(effects, ListConfig) or not all(isinstance(e, str) for e in effects):

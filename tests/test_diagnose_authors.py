@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from identify.diagnose.authors import AUTHOR_KEYS, author_base, author_regressor, author_torque
+from dynamics.errors import DataError
+from identify.diagnose.authors import AUTHOR_KEYS, author_base, author_regressor, author_torque, load_author_model
 
 
 def _parameters(rng: np.random.Generator) -> dict[str, float]:
@@ -151,3 +154,33 @@ def test_the_lofo_summary_counts_the_angle_zeroed_reading_where_it_was_judged() 
     table["splits"][0]["angle_zeroed"] = {"calibrated": [0.25, 0.05], "authors_x": [0.2, 0.1]}
     line = lofo_summary({"X": table}).split("\n")[2]
     assert line == "angle_zeroed: sum 0.3000 N m, 1 of 2 joints and 0 of 1 splits <= the lab's best"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("", r"a reference model is a mapping of I1, .*; the file holds None"),
+        ("I1: [1, 2\n", r"cannot read it as a reference model: .*"),
+        ("- 1\n- 2\n", r"a reference model is a mapping of .* the file holds \[1, 2\]"),
+        ("I1: 1\n", r"missing parameters \['I2', "),
+        ("\n".join(f"{k}: 1.0" for k in AUTHOR_KEYS).replace("m2: 1.0", "m2: abc"), r"parameter m2 is 'abc', not a"),
+        ("\n".join(f"{k}: 1.0" for k in AUTHOR_KEYS).replace("r1: 1.0", "r1: .nan"), r"parameter r1 is nan, not a"),
+    ],
+)
+def test_a_bad_reference_model_file_is_one_line_naming_the_file_and_the_key(
+    text: str, message: str, tmp_path: Path
+) -> None:
+    """A lab's yml beside the logs (found by diagnose.references=auto) or given by path: an empty one, one that is
+    no YAML, no mapping or a non-number ended in a traceback ('NoneType' is not iterable, could not convert
+    string to float: 'abc')."""
+    from harness.diagnose import reference_models
+
+    path = tmp_path / "authors_identified" / "design_X_model_1.0.yml"
+    path.parent.mkdir()
+    path.write_text(text)
+    with pytest.raises(DataError, match=rf"design_X_model_1\.0\.yml: {message}"):
+        load_author_model(path)
+    with pytest.raises(DataError, match=r"\(found beside the data: diagnose.references=auto\); diagnose.references=n"):
+        reference_models("auto", [tmp_path / "log.csv"])
+    with pytest.raises(DataError, match=r"diagnose.references=null compares with none$"):
+        reference_models([str(path)], [tmp_path / "log.csv"])

@@ -172,9 +172,13 @@ def test_a_text_column_the_diagnosis_does_not_use_is_listed_not_refused(csv_file
 def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     csv_files: list[Path], tmp_path: Path, key: str
 ) -> None:
-    """Known once the files are read (their rate), named by its key and the file; nothing is written."""
+    """Known once the files are read (their rate), named by its key and the file; nothing is written. So is one
+    too slow for the shortest file (the 5 s validation record: 1 Hz), which was blamed on the data (the columns
+    "look swapped")."""
     with pytest.raises(ConfigError, match=rf"{key}=300 Hz is not below the Nyquist frequency 250 Hz of .*\.csv"):
         cli.run(_config(csv_files, tmp_path, f"{key}=300"))
+    with pytest.raises(ConfigError, match=rf"{key}=0\.001 Hz is below 5 cycles over .*validation\.csv \(.* 1 Hz\)"):
+        cli.run(_config(csv_files, tmp_path, f"{key}=0.001"))
     assert not any(tmp_path.iterdir())
 
 
@@ -198,7 +202,10 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("++data.band_hz=[1,2]", r"data\.band_hz must be a number, got \[1, 2\]"),
         ("data.tau_lead_s=-0.001", r"data\.tau_lead_s must be >= 0, got -0\.001"),
         ("data.tau_lead_s=0.1", r"data\.tau_lead_s=0\.1 s is not below one sample \(0\.002 s\) of .*train\.csv"),
-        ("data.tau_lead_s=0.001 diagnose.derivatives=given", r"data\.tau_lead_s=0\.001 s needs states derived"),
+        (
+            "diagnose.derivatives=given",
+            r"diagnose\.derivatives=given reads .* holds no accelerations .* butterworth or",
+        ),
         ("diagnose.recording=maybe", r"diagnose\.recording must be true or false, got 'maybe'"),
         (
             "diagnose.mujoco_steps=auto",
@@ -255,7 +262,8 @@ def test_data_that_do_not_excite_the_refit_are_refused(tmp_path: Path) -> None:
 
 def test_a_time_column_in_minutes_is_named_not_zero_equations(csv_files: list[Path], tmp_path: Path) -> None:
     """A 500 Hz log timed in minutes reads as 30 kHz over a sixtieth of its length: the derivative filter's
-    start-up takes it all, and the refusal said "0 equations for 3 parameters"."""
+    start-up takes it all, and the refusal said "0 equations for 3 parameters". The 10 Hz state filter is then
+    too slow for records so short, which is refused with the time unit named."""
     paths = []
     for p in csv_files:
         lines = p.read_text().splitlines()
@@ -266,11 +274,28 @@ def test_a_time_column_in_minutes_is_named_not_zero_equations(csv_files: list[Pa
         paths.append(tmp_path / p.name)
         paths[-1].write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
     out = tmp_path / "out"
-    with pytest.raises(
-        DataError, match=r"train\.csv: the derivative filter .* trusts 0 of .*time column is in seconds"
-    ):
+    with pytest.raises(ConfigError, match=r"cutoff_hz=10 Hz is below 5 cycles .*time column is in seconds"):
         cli.run(_config(paths, out))
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_file_shorter_than_the_state_filter_is_named_not_a_scipy_padlen_error(
+    csv_files: list[Path], tmp_path: Path
+) -> None:
+    """data.min_samples=2 lets a 12-row file through the reader; the state filter then raised SciPy's "The length
+    of the input vector x must be greater than padlen, which is 15", naming neither the file nor the fix. The
+    command line refuses the filter as too slow for so short a file; the filter itself names the rows it trusts."""
+    from envs.measured import read_measured
+    from identify.derivatives import derive_states
+
+    lines = csv_files[0].read_text().splitlines()
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines[:13]) + "\n")
+    with pytest.raises(ConfigError, match=r"cutoff_hz=10 Hz is below 5 cycles over .*short\.csv \(0\.022 s"):
+        cli.run(_config([short, csv_files[1]], tmp_path / "out", "data.min_samples=2"))
+    data = read_measured(short, load_plant("pendulum"), min_samples=2)
+    with pytest.raises(DataError, match=r"short\.csv: the derivative filter \(butterworth\) trusts 0 of the 12 rows"):
+        derive_states(data, "butterworth", cutoff_hz=10.0)
 
 
 def test_a_data_configs_paths_are_relative_to_that_config_not_the_working_directory(tmp_path: Path) -> None:
@@ -352,6 +377,11 @@ def test_a_pattern_stands_for_its_files_and_one_that_matches_none_is_named(
     cfg = compose_config(["system=pendulum", f"data.path={tmp_path}/nope_*.csv"], config_name="diagnose")
     with pytest.raises(DataError, match=r"nope_\*\.csv: the pattern matches no file"):
         cli.data_paths(cfg)
+    # a file named with a pattern's characters is itself, not the files the pattern would match (run1.csv here)
+    (tmp_path / "run[1].csv").write_text("x")
+    (tmp_path / "run1.csv").write_text("x")
+    cfg = compose_config(["system=pendulum", f"data.path='{tmp_path}/run[1].csv'"], config_name="diagnose")
+    assert cli.data_paths(cfg) == [tmp_path / "run[1].csv"]
 
 
 def test_a_file_whose_torque_is_stuck_at_zero_is_left_out_or_refused(csv_files: list[Path], tmp_path: Path) -> None:
@@ -368,6 +398,11 @@ def test_a_file_whose_torque_is_stuck_at_zero_is_left_out_or_refused(csv_files: 
     payload = cli.run(_config([stuck, *csv_files], tmp_path / "with", "diagnose.recording=false"))
     assert payload["excluded"] == ["stuck.csv: torque of swing (100% of rows exactly 0)"]
     assert payload["findings"][0]["effect"] == "viscous_friction"
+    # named as the validation file, it was left out and then said to be "not among the files read"
+    with pytest.raises(DataError, match=r"stuck\.csv: torque of swing .* left out, and data\.validation names it"):
+        cli.run(
+            _config([stuck, *csv_files], tmp_path / "named", "diagnose.recording=false", "data.validation=stuck.csv")
+        )
 
 
 def test_a_torque_spike_in_a_log_is_repaired_and_listed(csv_files: list[Path], tmp_path: Path) -> None:

@@ -534,6 +534,9 @@ def test_split_by_file_and_by_time_block(tmp_path: Path, plant: Plant) -> None:
         split_train_validation(datasets, validation=["run9"])
     block = split_train_validation(datasets[:1], validation_fraction=0.25)
     assert block.by == "time_block"
+    # a fraction that holds out too few rows is named with the range that works (it said "too few to split")
+    with pytest.raises(DataError, match=r"data\.validation_fraction 1e-06 holds 0 out; .* between 0\.05 and 0\.95"):
+        split_train_validation(datasets[:1], validation_fraction=1e-6)
     # a data config's validation file, kept while a single file is given on the command line: the key and the
     # remedy are named (it said "set validation_fraction", which cannot help)
     with pytest.raises(ValueError, match=r"validation names \['run2.csv'\] but only one file was read \(run0.csv\)"):
@@ -571,7 +574,9 @@ def test_read_many_reports_every_bad_file(tmp_path: Path, plant: Plant) -> None:
     packed.write_bytes(gzip.compress(good.read_bytes()))
     crlf = tmp_path / "crlf.csv"
     crlf.write_bytes(good.read_bytes().replace(b"\n", b"\r\n"))
-    for other in (packed, crlf):
+    # ... or with its clock started elsewhere (a log re-exported with the controller's uptime): the same motion
+    later = write(tmp_path / "later.csv", edited(lambda c: c["time"].__iadd__(1234.5)))
+    for other in (packed, crlf, later):
         with pytest.raises(DataError, match=rf"{other.name} holds the same samples as .*good\.csv"):
             read_many([good, other], plant)
     read_many([good, write(tmp_path / "other.csv", table(amplitude=(0.4, 0.7)))], plant)  # other data: accepted

@@ -15,10 +15,13 @@ I1, I2 are the link inertias about the joint axes; the parameters come from thei
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import yaml
+
+from dynamics.errors import DataError, one_line
 
 __all__ = [
     "AUTHOR_BASE_NAMES",
@@ -39,14 +42,31 @@ def load_author_model(path: Path) -> dict[str, float]:
     """The parameters of one of the authors' yml files.
 
     Raises:
-        ValueError: a parameter of `AUTHOR_KEYS` is missing (the message names the file and the keys).
+        DataError: the file cannot be read or parsed, is not a mapping, or a parameter of `AUTHOR_KEYS` is
+            missing or not a finite number (the message names the file and the key).
     """
-    with open(path) as f:
-        raw = yaml.safe_load(f)
+    try:
+        with open(path, encoding="utf-8") as f:
+            raw = yaml.safe_load(f)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        why = err.strerror if isinstance(err, OSError) and err.strerror else one_line(err)
+        raise DataError(f"{path}: cannot read it as a reference model: {why}") from None
+    if not isinstance(raw, dict):
+        raise DataError(
+            f"{path}: a reference model is a mapping of {', '.join(AUTHOR_KEYS)}; the file holds {raw!r:.60}"
+        )
     missing = [k for k in AUTHOR_KEYS if k not in raw]
     if missing:
-        raise ValueError(f"{path}: missing parameters {missing}")
-    return {k: float(raw[k]) for k in AUTHOR_KEYS}
+        raise DataError(f"{path}: missing parameters {missing}")
+    out = {}
+    for k in AUTHOR_KEYS:
+        try:
+            out[k] = float(raw[k])
+        except (TypeError, ValueError):
+            out[k] = math.nan
+        if not math.isfinite(out[k]):
+            raise DataError(f"{path}: parameter {k} is {raw[k]!r}, not a finite number")
+    return out
 
 
 def _terms(p: dict[str, float], q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
