@@ -894,10 +894,12 @@ def _fit_joint_ranges(
             continue
         k = int(bad[np.argmax(np.maximum(lo - x[bad], x[bad] - hi))])
         unit_name = "rad" if plant.hinge[j] else "m"
+        degrees = plant.hinge[j] and lo <= float(x.min()) * _DEGREE and float(x.max()) * _DEGREE <= hi
         why = (
             f"it fits {turns[0]:+d} whole turn(s) over; not repaired (repair=False)"
             if turns
             else "widen the joint's range in the MJCF, or correct the angle's zero with an offset in the column mapping"
+            + (f"; read as degrees it lies inside the range: if it is, give the scale {_DEGREE:.6g}" if degrees else "")
         )
         raise DataError(
             f"{src}: {label} leaves the joint range [{lo:.4g}, {hi:.4g}] {unit_name} of {plant.name} by more than "

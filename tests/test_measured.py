@@ -893,6 +893,13 @@ def test_an_angle_far_outside_the_joint_range_is_refused_and_one_pressed_into_it
     )
     with pytest.raises(DataError, match=far):
         read_measured(write(tmp_path / "turn.csv", cols), pendulum)
+    # a swing of +-8 degrees logged in degrees: out of the range as radians, not far enough to be read as degrees
+    # at once (3 times the range); the refusal named only the range and the zero
+    cols["q_swing"] = 8.0 * np.sin(2 * np.pi * 0.7 * t)
+    with pytest.raises(
+        DataError, match=r"widen the joint's range .* read as degrees it lies inside the range: .* 0\.0174533"
+    ):
+        read_measured(write(tmp_path / "degrees.csv", cols), pendulum)
     cols["q_swing"] = np.clip(3.4 * np.sin(2 * np.pi * 0.7 * t), -3.3, 3.3)  # 0.16 rad into both stops
     data = read_measured(write(tmp_path / "stop.csv", cols), pendulum)
     assert not data.meta["repairs"]

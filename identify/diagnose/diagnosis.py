@@ -404,7 +404,8 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
         if low or share > TORQUE_SHARE[1]:
             why = (
                 "a dead or disconnected sensor, a torque in another unit (a factor near 1000: kN m), time in "
-                "another unit (the torque needed goes with its square) or another joint's column"
+                "another unit (the torque needed goes with its square), angles logged in degrees (a motion 57 times "
+                "as large) or another joint's column"
                 if low
                 else "a torque in another unit (a factor near 1000: mN m), or a nominal model far lighter than the "
                 "robot"
