@@ -785,10 +785,16 @@ def _check_angle_units(
         far = max(abs(x_lo), abs(x_hi)) > 3.0 * max(abs(lo), abs(hi))
         if np.isfinite(lo) and np.isfinite(hi) and far and lo <= x_lo * _DEGREE and x_hi * _DEGREE <= hi:
             k = int(np.argmax(np.abs(q[:, j])))
+            turns = [n for n in range(-4, 5) if n and lo <= x_lo + 2 * np.pi * n and x_hi + 2 * np.pi * n <= hi]
+            other = (  # an encoder zero whole turns off fits too: both readings are named
+                f", or lies {-turns[0]:+d} whole turn(s) off its zero (then give the offset {2 * np.pi * turns[0]:.6g})"
+                if turns
+                else ""
+            )
             raise DataError(
                 f"{src}: {lq} spans [{x_lo:.4g}, {x_hi:.4g}] (row {k}, line {k + 2}: {q[k, j]:.4g}), far beyond "
                 f"the joint range [{lo:.4g}, {hi:.4g}] rad of {plant.name}, and inside it when read as degrees: the "
-                "angle looks like degrees; the harness expects radians"
+                f"angle looks like degrees (then give the scale {_DEGREE:.6g}){other}; the harness expects radians"
             )
 
 

@@ -303,9 +303,16 @@ def test_angles_in_degrees_without_velocity_are_refused_by_the_joint_range(tmp_p
     del cols["dq_shoulder"], cols["dq_elbow"]
     cols["q_shoulder"] = np.degrees(cols["q_shoulder"])
     with pytest.raises(
-        DataError, match=r"column 'q_shoulder' spans .* far beyond the joint range .* looks like degrees"
+        DataError, match=r"column 'q_shoulder' spans .* far beyond the joint range .* looks like degrees \(then give"
     ):
         read_measured(write(tmp_path / "deg.csv", cols), plant)
+    # an angle three whole turns off its zero reads as degrees inside the range too: both readings are named (the
+    # reader repairs whole turns, but this check came first and said only "degrees")
+    cols = table()
+    del cols["dq_shoulder"], cols["dq_elbow"]
+    cols["q_shoulder"] = 0.3 * np.sin(np.linspace(0, 6, len(cols["time"]))) + 6 * np.pi
+    with pytest.raises(DataError, match=r"looks like degrees .* or lies \+3 whole turn\(s\) off its zero .* -18\.8496"):
+        read_measured(write(tmp_path / "turns.csv", cols), plant)
 
 
 def test_velocity_of_the_wrong_sign_is_refused(tmp_path: Path, plant: Plant) -> None:
