@@ -197,7 +197,9 @@ def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, per
     """Scale a torque design to the largest amplitude whose simulated response keeps every limit.
 
     The response is nonlinear in the amplitude, so a batch of scales is rolled out at once and the largest
-    feasible one is kept, then refined once around it.
+    feasible one is kept, then refined once around it. Where none of the first batch (down to 1/16 of the torque
+    limit) keeps the limits, batches 16 and 256 times lower are tried before giving up (a light arm whose motors
+    would spin it far beyond its speed bound).
 
     Raises:
         InfeasibleExcitationError: even the smallest tried amplitude breaks a limit (named in the message).
@@ -208,7 +210,8 @@ def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, per
         s_tau = float(np.min(np.where(peak > 0, limits.tau_max / peak, np.inf)))
     lo, hi = 0.0, s_tau
     last_ratios: dict[str, float] = {}
-    for _ in range(2):
+    lower, refined = 2, False  # batches 16 times lower still to try; whether the refining batch has run
+    while True:
         scales = np.linspace(hi / 16, hi, 16) if lo == 0 else np.linspace(lo, hi, 16)
         q, dq = torque_rollout(plant, [shape.scaled(s) for s in scales], periods=periods)
         ok = []
@@ -219,12 +222,15 @@ def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, per
         if feasible.size == 0:
             if lo > 0:
                 break
+            if lower:
+                lower, hi = lower - 1, float(scales[0])
+                continue
             raise limits.infeasible(
                 f"no torque amplitude down to {scales[0]:.3g} x the shape keeps the limits", last_ratios
             )
         best = int(feasible.max())
         lo = float(scales[best])
-        if best == len(scales) - 1:
+        if refined or best == len(scales) - 1:
             break
-        hi = float(scales[best + 1])
+        hi, refined = float(scales[best + 1]), True
     return shape.scaled(lo)

@@ -248,3 +248,27 @@ def test_a_torque_design_for_servos_is_sized_on_the_motion_the_servos_give(tmp_p
     assert np.max(np.abs(data.q[:n] - q_search[:n])) < 0.01 * np.ptp(data.q[:n], axis=0).max()
     ratios = limits.ratios(data.q, np.gradient(data.q, data.time, axis=0))
     assert max(ratios.values()) <= 1.0, ratios
+
+
+def test_a_torque_design_for_strong_motors_on_a_light_arm_is_found_below_a_sixteenth_of_their_limit(
+    tmp_path: Path,
+) -> None:
+    """Motors of 30 and 10 N m on a light arm with a passive joint: a sixteenth of their torque still spun it
+    beyond 1.5 rad/s (the default speed bound of a model brought by path), and the run was refused although a
+    smaller amplitude keeps every bound. The search now goes on to 1/256 and 1/4096 of the limit."""
+    from excitation.designs import default_design, torque_rollout
+
+    xml = _SERVO_ARM.replace(
+        '<position joint="j1" kp="20" kv="1" ctrlrange="-1.5 1.5" forcerange="-4 4"/>',
+        '<motor joint="j1" ctrlrange="-30 30"/>',
+    ).replace(
+        '<position joint="j3" kp="5" kv="0.2" ctrlrange="-1.5 1.5" forcerange="-1 1"/>',
+        '<motor joint="j3" ctrlrange="-10 10"/>',
+    )
+    plant = plant_from_xml(xml, "strong", tmp_path)
+    limits = limits_for(plant, velocity=1.5, acceleration=8.0, range_margin=0.05)
+    design = default_design(plant, limits, harmonics=5, base_freq_hz=0.1, torque_driven=True)
+    peak = np.max(np.abs(design.torque(np.linspace(0.0, design.period_s, 2001))), axis=0)
+    assert peak[0] < 30.0 / 16  # below the first batch
+    q, dq = torque_rollout(plant, [design], periods=3.0)
+    assert max(limits.ratios(q[0], dq[0]).values()) <= 1.0
