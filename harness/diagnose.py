@@ -269,6 +269,9 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     repairs = {  # per file: what the reader repaired (the first 100 rows of each kind)
         d.source: [{**asdict(r), "rows": list(r.rows[:100])} for r in d.meta.get("repairs", ())] for d in datasets
     }
+    for d in datasets:  # said as they are made, not only in diagnosis.json
+        for r in d.meta.get("repairs", ()):
+            stage(f"repaired {Path(d.source).name}: {r.message}")
     ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
     derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}

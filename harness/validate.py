@@ -539,6 +539,10 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
                 hint = None
             if hint:
                 lines.append(f"did you mean {hint}?")
+        tilde = next((o for o in overrides if "=" in o and o.split("=", 1)[1].startswith("~")), None)
+        if tilde is not None:  # Hydra's grammar reads a bare ~ as an operator; a quoted value is a plain string
+            key, value = tilde.split("=", 1)
+            lines.append(f"a value that begins with ~ must be quoted: {key}='{value}'")
         raise ConfigError("; ".join(lines) or type(err).__name__) from None
 
 

@@ -405,8 +405,11 @@ def test_a_file_whose_torque_is_stuck_at_zero_is_left_out_or_refused(csv_files: 
         )
 
 
-def test_a_torque_spike_in_a_log_is_repaired_and_listed(csv_files: list[Path], tmp_path: Path) -> None:
-    """One sample of 1e30 N m (a logging glitch) broke the calibrated model's inertias with a traceback."""
+def test_a_torque_spike_in_a_log_is_repaired_and_listed(
+    csv_files: list[Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One sample of 1e30 N m (a logging glitch) broke the calibrated model's inertias with a traceback. The
+    repair is said on the terminal as well (it was only in diagnosis.json)."""
     spiked = tmp_path / "spiked.csv"
     lines = csv_files[0].read_text().splitlines()
     header = lines[0].split(",")
@@ -419,6 +422,7 @@ def test_a_torque_spike_in_a_log_is_repaired_and_listed(csv_files: list[Path], t
     (repair,) = [r for r in payload["repairs"][str(spiked)] if r["kind"] == "torque_spike"]
     assert repair["rows"] == [199] and "tau_swing" in repair["column"]
     assert payload["findings"][0]["effect"] == "viscous_friction"
+    assert f"repaired spiked.csv: {repair['message']}" in capsys.readouterr().err
 
 
 def test_a_slide_joints_torques_and_errors_are_reported_in_its_units(tmp_path: Path) -> None:

@@ -495,6 +495,10 @@ def test_an_unknown_key_or_malformed_value_is_one_config_error() -> None:
         with pytest.raises(ConfigError, match=r"Could not override '(foo|estimator.options.bogus)'"):
             check_command_line(sweep, CONF, "config")
     check_command_line(["-m", "system=pendulum,two_link", "excitation.harmonics=range(2,4)"], CONF, "config")
+    # a home-folder path: Hydra's lexer stops at the ~ ("LexerNoViableAltException: data.path=~/x.csv; ^")
+    with pytest.raises(ConfigError, match=r"a value that begins with ~ must be quoted: data\.path='~/x\.csv'$"):
+        check_command_line(["system=two_link", "data.path=~/x.csv"], CONF, "diagnose")
+    check_command_line(["system=two_link", "data.path='~/x.csv'"], CONF, "diagnose")
 
 
 def test_a_misspelled_key_is_answered_with_the_key_meant_not_with_a_plus() -> None:
