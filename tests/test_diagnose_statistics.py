@@ -270,3 +270,24 @@ def test_the_angles_noise_in_the_model_torque_is_noise_not_structure() -> None:
     # a 1.3 Hz torque twice that noise's RMS on top of it is structure
     x = x + 2 * np.sqrt(2) * np.std(states) * np.sin(2 * np.pi * 1.3 * np.arange(5000) / fs)[:, None]
     assert whiteness(x, floor, fs, state_noise=states)[0]["structured"]
+
+
+def test_an_effect_chosen_on_a_joint_takes_that_joints_other_variants_out_of_the_running() -> None:
+    """Two Stribeck frictions of other speeds on the UR5e's elbow were both chosen (a damping and a frictionloss
+    hidden there, another generator's data), and the calibrated MJCF could not be written: "repeated name
+    'sysid_stribeck_friction_elbow_joint' in numeric". One value of an effect per joint or body; one friction shape
+    per joint."""
+    from dynamics.plant import load_plant
+    from identify.diagnose.candidates import _shape_friction
+    from identify.diagnose.select import Step, _taken
+
+    plant = load_plant("two_link")
+    shapes = _shape_friction(plant)
+    stribeck = [c for c in shapes if c.effect == "stribeck_friction" and c.target == "elbow"]
+    smooth = [c for c in shapes if c.effect == "smooth_coulomb_friction" and c.target == "elbow"]
+    other_joint = [c for c in shapes if c.effect == "stribeck_friction" and c.target == "shoulder"]
+    assert len(stribeck) > 1 and smooth and other_joint
+    chosen = [Step(stribeck[0], np.arange(1), -10.0, 1.0, 0.5)]
+    assert _taken(stribeck[1], chosen)  # another speed of the same effect on the same joint
+    assert not _taken(other_joint[0], chosen) and not _taken(smooth[0], chosen)
+    assert _taken(smooth[1], [Step(smooth[0], np.arange(1), -10.0, 1.0, 0.5)])  # one frictionloss per joint

@@ -290,10 +290,17 @@ def _fold_mse(held: np.ndarray, folds: np.ndarray, n_folds: int) -> float:
     return float(np.sum(held[ok] * sizes[ok]) / np.sum(sizes[ok]))
 
 
-def _shares_frictionloss(cand: Candidate, chosen: list[Step]) -> bool:
-    """True where a friction shape is already chosen for the candidate's joint (one frictionloss per joint)."""
-    return cand.effect in FRICTIONLOSS_EFFECTS and any(
-        s.candidate.effect in FRICTIONLOSS_EFFECTS and s.candidate.target == cand.target for s in chosen
+def _taken(cand: Candidate, chosen: list[Step]) -> bool:
+    """True where the candidate's effect is already chosen on its joint or body (one value of an effect there: a
+    grid's other width or period, a Stribeck friction of another speed, would be a second numeric of one name in
+    the calibrated MJCF), or a friction shape is already chosen for its joint (one frictionloss per joint)."""
+    return any(
+        s.candidate.target == cand.target
+        and (
+            s.candidate.effect == cand.effect
+            or (s.candidate.effect in FRICTIONLOSS_EFFECTS and cand.effect in FRICTIONLOSS_EFFECTS)
+        )
+        for s in chosen
     )
 
 
@@ -435,7 +442,7 @@ def select_effects(
         Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
         alone: float | None = None  # the constants' held-out MSE without any candidate, once it is asked for
         for cand in cands:
-            if any(s.candidate.key == cand.key for s in chosen) or _shares_frictionloss(cand, chosen):
+            if any(s.candidate.key == cand.key for s in chosen) or _taken(cand, chosen):
                 continue
             cols = built[cand.key]
             kept = _span_free(basis, _flat(cols, sw))
