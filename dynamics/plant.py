@@ -328,14 +328,16 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
             f"{path}: actuator(s) {acts} are in disabled group(s) {groups} (<option actuatorgroupdisable>): "
             "MuJoCo applies none of their force; enable the group or remove the actuators"
         )
-    for kind, count in ((mujoco.mjtObj.mjOBJ_JOINT, m.njnt), (mujoco.mjtObj.mjOBJ_BODY, m.nbody)):
+    for kind, count, what, plural in (
+        (mujoco.mjtObj.mjOBJ_JOINT, m.njnt, "joint", "joints"),
+        (mujoco.mjtObj.mjOBJ_BODY, m.nbody, "body", "bodies"),
+    ):
         listed = [_name(m, kind, i) for i in range(count)]
         taken = [i for i in range(count) if not mujoco.mj_id2name(m, kind, i) and listed.count(listed[i]) > 1]
         if taken:  # the harness calls an unnamed joint joint<index> (a body body<index>), and another has that name
-            what = kind.name.removeprefix("mjOBJ_").lower()
             raise ModelError(
                 f"{path}: {what} {taken[0]} has no name and the name the harness gives it, {listed[taken[0]]!r}, is "
-                f"another {what}'s: name the {what.replace('body', 'bodie')}s"
+                f"another {what}'s: name the {plural}"
             )
     names = {_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)}
     clash = sorted(n for n in names if n.startswith("cmd_") and n.removeprefix("cmd_") in names)

@@ -11,7 +11,7 @@ from typing import Any
 from dynamics.errors import DataError
 from envs.dataset import Dataset
 
-__all__ = ["Split", "split_train_validation"]
+__all__ = ["Split", "names_file", "split_train_validation"]
 
 
 @dataclass(frozen=True)
@@ -38,6 +38,11 @@ class Split:
             ]
 
         return {"by": self.by, "train": part(self.train), "validation": part(self.validation)}
+
+
+def names_file(name: object, source: str) -> bool:
+    """Whether a file's name as `data.validation` gives it (its path, file name or stem) is the file `source`."""
+    return str(name) in (source, Path(source).name, Path(source).stem)
 
 
 def split_train_validation(
@@ -76,14 +81,15 @@ def split_train_validation(
         cut = int(round(data.n_samples * (1.0 - validation_fraction)))
         short = min(cut, data.n_samples - cut)
         if short < min_samples:
+            fix = (
+                f"data.validation_fraction {validation_fraction:g} holds {data.n_samples - cut} out; give a fraction "
+                f"between {min_samples / data.n_samples:.2g} and {1 - min_samples / data.n_samples:.2g}, or more data"
+                if 2 * min_samples <= data.n_samples
+                else "give more data"
+            )
             raise DataError(
                 f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
-                f"block of at least {min_samples} samples each (data.validation_fraction {validation_fraction:g} holds "
-                f"{data.n_samples - cut} out; data.min_samples {min_samples}): give a fraction between "
-                f"{min_samples / data.n_samples:.2g} and {1 - min_samples / data.n_samples:.2g}, or more data"
-                if 2 * min_samples <= data.n_samples
-                else f"{data.source}: {data.n_samples} samples are too few to split into a training and a validation "
-                f"block of at least {min_samples} samples each (data.min_samples): give more data"
+                f"block of at least {min_samples} samples each (data.min_samples): {fix}"
             )
         return Split((data.slice(0, cut),), (data.slice(cut, data.n_samples),), "time_block")
     if validation is None:
@@ -92,9 +98,7 @@ def split_train_validation(
     else:
         held = set()
         for name in validation:
-            hits = [
-                i for i, d in enumerate(datasets) if str(name) in (d.source, Path(d.source).name, Path(d.source).stem)
-            ]
+            hits = [i for i, d in enumerate(datasets) if names_file(name, d.source)]
             if not hits:
                 given = ", ".join(Path(d.source).name for d in datasets)
                 raise ValueError(

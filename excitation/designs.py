@@ -187,10 +187,12 @@ def torque_rollout(
 
 
 def torque_model(plant: Plant) -> mujoco.MjModel:
-    """`plant`'s model with every actuator a unit-gain motor without bias or ctrl limits (`as_motors`; force ranges
-    kept): its ctrl is the joint torque / gear whatever the actuator's own law, as an open-loop torque design is
-    applied (the simulation inverts each actuator's law at every step: `Actuation.ctrl_for_torque`)."""
-    return as_motors(plant.mj_model, plant.name, np.ones(plant.mj_model.nu, bool))
+    """`plant`'s model with every actuator that is not a unit-gain motor made one, without bias or ctrl limits
+    (`as_motors`; force ranges kept): its ctrl is the joint torque / gear whatever the actuator's own law, as an
+    open-loop torque design is applied (the simulation inverts each actuator's law at every step:
+    `Actuation.ctrl_for_torque`). A model of unit-gain motors is itself, no copy."""
+    other = [not (a.kind == "motor" and a.gain == 1.0) for a in plant.actuation.actuators]
+    return as_motors(plant.mj_model, plant.name, np.array(other, dtype=bool))
 
 
 def fit_torque_design(plant: Plant, shape: FourierDesign, limits: Limits, *, periods: float = 3.0) -> FourierDesign:

@@ -34,7 +34,7 @@ from dynamics.plant import Plant, as_simulated
 from dynamics.regressor import ParameterModel
 from envs.dataset import Dataset, atomic_write
 from envs.measured import read_many
-from envs.split import split_train_validation
+from envs.split import names_file, split_train_validation
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
 from harness.setup import CONF_DIR, load_system, with_auto_system, with_model_defaults
@@ -152,7 +152,7 @@ def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
     return [dataclasses.replace(d, tau_lead_s=lead) for d in datasets]
 
 
-def _check_below_nyquist(cfg: DictConfig, datasets: list[Dataset]) -> None:
+def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or below
     `MIN_FILTER_CYCLES` cycles over the shortest one, or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
     samples (known once read)."""
@@ -265,7 +265,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
     datasets = _with_torque_lead(datasets, float(cfg.data.get("tau_lead_s") or 0.0))
-    _check_below_nyquist(cfg, datasets)
+    _check_filters(cfg, datasets)
     repairs = {  # per file: what the reader repaired (the first 100 rows of each kind)
         d.source: [{**asdict(r), "rows": list(r.rows[:100])} for r in d.meta.get("repairs", ())] for d in datasets
     }
@@ -377,7 +377,7 @@ def _without_stuck_torques(
     lines = [f"{Path(src).name}: torque of {', '.join(j)}" for src, j in stuck.items()]
     kept = [d for d in datasets if d.source not in stuck]
     for src, joints in stuck.items():
-        if any(str(name) in (src, Path(src).name, Path(src).stem) for name in validation):
+        if any(names_file(name, src) for name in validation):
             raise DataError(
                 f"{src}: torque of {', '.join(joints)}: stuck at zero (the sensor is off, or the column is not "
                 "logged), so the file is left out, and data.validation names it: validate on another file"

@@ -155,16 +155,21 @@ def _log_to_files(message: str, level: int = logging.ERROR) -> None:
         logging.raiseExceptions = raising
 
 
-def record_failure(out: Path, err: BaseException, *, with_traceback: bool = True) -> str:
-    """Write `failure.json` into the run folder `out` (unless the folder is not this run's: it holds a finished
-    run's results, or another run holds it) and log the error; returns the one-line description."""
+def record_failure(out: Path, err: BaseException, *, with_traceback: bool = True, own_folder: bool = False) -> str:
+    """Write `failure.json` into the run folder `out` (unless the folder is not this run's: another run holds it,
+    or it holds a finished run's results and is not `own_folder`) and log the error; returns the one-line
+    description. `own_folder`: a sweep's job folder, whose results (if any) are an earlier run's that this one, with
+    overwrite=true, failed to replace: the failure is recorded beside them, and the sweep counts the job failed
+    (`rundir.failed_since_results`)."""
     from harness.rundir import RunFolderError
 
     message = describe_failure(err)
     _log_to_files(message)
-    if isinstance(err, RunFolderError) or any((out / name).exists() for name in RESULTS_FILES):
+    earlier = any((out / name).exists() for name in RESULTS_FILES)
+    if isinstance(err, RunFolderError) or (earlier and not own_folder):
         return message
-    payload = {"error": message, "traceback": traceback.format_exc() if with_traceback else None}
+    error = f"{message} (the results here are an earlier run's)" if earlier else message
+    payload = {"error": error, "traceback": traceback.format_exc() if with_traceback else None}
     with contextlib.suppress(OSError):  # the folder may be the very thing that failed
         if out.is_dir():
             write_json(out / "failure.json", payload)

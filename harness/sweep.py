@@ -33,8 +33,8 @@ __all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
 
 
 def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
-    from harness.results import USER_ERRORS, as_interrupt, one_line, record_failure, write_json
-    from harness.rundir import RunFolderError, terminate_as_exit
+    from harness.results import USER_ERRORS, as_interrupt, one_line, record_failure
+    from harness.rundir import terminate_as_exit
 
     with contextlib.suppress(OSError):
         Path("/proc/self/oom_score_adj").write_text("1000")
@@ -44,12 +44,7 @@ def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
             work(cfg)
         except BaseException as raised:
             err = as_interrupt(raised)
-            message = record_failure(out, err)
-            if not isinstance(err, RunFolderError) and any((out / n).is_file() for n in RESULTS_FILES):
-                # this job's folder (the sweep's, re-run with overwrite=true) holds an earlier run's results: they
-                # stay, and the failure is recorded beside them so that the sweep counts this job as failed
-                with contextlib.suppress(OSError):
-                    write_json(out / "failure.json", {"error": f"{message} (the results here are an earlier run's)"})
+            message = record_failure(out, err, own_folder=True)
             shown = one_line(err) if isinstance(err, USER_ERRORS) else message
             print(f"{label} failed: {shown}", file=sys.stderr)
             if not isinstance(err, (*USER_ERRORS, SystemExit, KeyboardInterrupt)):

@@ -178,8 +178,7 @@ def _butterworth(
     cutoff = _cutoff(data, fs, cutoff_hz, cutoff_factor)
     sos = signal.butter(order, cutoff, fs=fs, output="sos")
     if edges == "trim":
-        padlen = 3 * (2 * len(sos) + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum())))  # SciPy's
-        if data.n_samples <= padlen:  # shorter than the filter's own padding: nothing of it can be trusted
+        if data.n_samples <= 3 * (2 * len(sos) + 1):  # not longer than SciPy's padding (at most this): none trusted
             return States(data.q, data.q, data.q, np.zeros(data.n_samples, bool))
         q = signal.sosfiltfilt(sos, data.q, axis=0)
         dq = gradient(q, data.time)

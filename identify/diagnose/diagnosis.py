@@ -348,7 +348,7 @@ TORQUE_SHARE = (0.04, 200.0)
 # a measured torque of which the nominal torque, a viscous and a Coulomb friction and a spring (each with a free
 # coefficient) explain less than this share, and less than `CHANCE_FACTOR` times what four columns explain of noise
 # by chance (4 / the record's independent samples in the band), does not follow the motion at all: noise, another
-# motion's log, a time axis not the angles'. The DFKI logs' driven joints are explained to 0.6-0.99
+# motion's log, a time axis not the angles'. The DFKI logs' driven joints are explained to 0.94-0.997
 UNRELATED_SHARE = 0.2
 CHANCE_FACTOR = 3.0
 SWAP_CORRELATION = 0.5  # two torques each correlated this well with the other joint's nominal torque ...
@@ -397,6 +397,8 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                     "round in data.columns (or set diagnose.check_torque_signs=false)"
                 )
     _check_angle_columns(plant, data, signal, tau_band, [int(j) for j in np.flatnonzero(moving)], src)
+    # the friction and spring columns beside the nominal torque, centred, in the band: (N, nv) each
+    speed, sign, angle = (x - x.mean(axis=0) for x in map(signal.smooth, (signal.dq, np.sign(signal.dq), signal.q)))
     for j in joints:
         size = float(b[:, j] @ a[:, j]) / max(float(na[j]) ** 2, 1e-300)
         share = float(nb[j]) / max(float(na[j]), 1e-300)
@@ -416,7 +418,7 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                 f"(data.columns.tau_{names[j]}), or set diagnose.check_torque_signs=false if the nominal model is "
                 "that far off"
             )
-        explained, chance = _motion_explains(a[:, j], b[:, j], signal, j)
+        explained, chance = _motion_explains(a[:, j], b[:, j], (speed[:, j], sign[:, j], angle[:, j]), signal.record)
         if explained < UNRELATED_SHARE and explained < CHANCE_FACTOR * chance and not commanded_zero[j]:
             raise DataError(
                 f"{src}: {column(j)} does not follow the motion: the torque the nominal model needs at {names[j]}, "
@@ -425,7 +427,8 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
                 "column, or a time column not the angles'; give the right column in data.columns, or set "
                 "diagnose.check_torque_signs=false if the joint's torque really is unrelated to its motion"
             )
-        if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE and not _friction_explains(a[:, j], b[:, j], signal, j):
+        friction = (speed[:, j], sign[:, j])
+        if r[j, j] < SIGN_CORRELATION and size < SIGN_SIZE and not _friction_explains(a[:, j], b[:, j], friction):
             raise DataError(
                 f"{src}: {column(j)} runs against the torque the nominal model needs at {names[j]} along the motion "
                 f"(correlation {r[j, j]:.2f}{band}, {size:.2f} times its size): its sign looks flipped: negate its "
@@ -435,24 +438,26 @@ def check_torque_columns(plant: Plant, data: Dataset, signal: Signals, moving: n
             )
 
 
-def _motion_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signals, j: int) -> tuple[float, float]:
-    """(The share of the variance of a joint's measured torque that its nominal torque, a viscous and a Coulomb
-    friction and a spring explain, each with a free coefficient; the share four such columns explain of noise by
-    chance, 4 / the independent samples, from the measured torque's correlation time.) `nominal`, `measured`:
-    (N,), centred, in the band."""
-    cols = [signal.smooth(signal.dq)[:, j], signal.smooth(np.sign(signal.dq))[:, j], signal.smooth(signal.q)[:, j]]
-    X = np.column_stack([nominal, *(c - c.mean() for c in cols)])
+def _motion_explains(
+    nominal: np.ndarray, measured: np.ndarray, columns: tuple[np.ndarray, ...], record: np.ndarray
+) -> tuple[float, float]:
+    """(The share of the variance of a joint's measured torque that its nominal torque and `columns` (its speed,
+    sign of speed and angle: a viscous and a Coulomb friction and a spring) explain, each with a free coefficient;
+    the share as many columns explain of noise by chance, their number / the independent samples, from the measured
+    torque's correlation time within each `record`.) Every (N,) array centred, in the band."""
+    X = np.column_stack([nominal, *columns])
     X = X[:, np.linalg.norm(X, axis=0) > 0]
     fit = np.linalg.lstsq(X, measured, rcond=None)[0]
     total = max(float(measured @ measured), 1e-300)
     explained = 1.0 - float(np.sum((measured - X @ fit) ** 2)) / total
-    independent = len(measured) / correlation_time(measured, signal.record)
+    independent = len(measured) / correlation_time(measured, record)
     return explained, min(1.0, X.shape[1] / independent)
 
 
-def _friction_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signals, j: int) -> bool:
+def _friction_explains(nominal: np.ndarray, measured: np.ndarray, friction: tuple[np.ndarray, np.ndarray]) -> bool:
     """Whether a measured torque that runs against the nominal one (both (N,), centred, in the band) is that torque
     plus the joint's friction, which the nominal model may lack: with a viscous and a Coulomb friction >= 0 fitted
+    (`friction`: the joint's speed and sign of speed, centred, in the band)
     beside it, the nominal torque's coefficient is at least `SIGN_SIZE` and the fit explains `FRICTION_EXPLAINS` of
     the measured torque's variance. A friction larger than the torque the model needs (a heavily damped joint driven
     above its resonance) can turn the plain correlation negative while the torque's sign is right: on the lab's
@@ -460,8 +465,7 @@ def _friction_explains(nominal: np.ndarray, measured: np.ndarray, signal: Signal
     (-3.02 times the size) and the record was refused as flipped; beside the friction the coefficient is 0.999 and
     the share explained 0.99998. A flipped column's friction would have to be negative; the share asked keeps a
     flipped column of a joint that hardly moves refused (a C.1 shoulder: coefficient 0.77, share 0.65)."""
-    cols = [signal.smooth(signal.dq)[:, j], signal.smooth(np.sign(signal.dq))[:, j]]
-    X = np.column_stack([nominal, *(c - c.mean() for c in cols)])
+    X = np.column_stack([nominal, *friction])
     scale = np.maximum(np.linalg.norm(X, axis=0), 1e-300)
     fit = optimize.lsq_linear(X / scale, measured, bounds=([-np.inf, 0.0, 0.0], [np.inf, np.inf, np.inf]))
     left = float(np.sum((measured - (X / scale) @ fit.x) ** 2)) / max(float(np.sum(measured**2)), 1e-300)

@@ -442,7 +442,7 @@ def select_effects(
         Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
         alone: float | None = None  # the constants' held-out MSE without any candidate, once it is asked for
         for cand in cands:
-            if any(s.candidate.key == cand.key for s in chosen) or _taken(cand, chosen):
+            if _taken(cand, chosen):  # the same candidate too (its key is its effect and target)
                 continue
             cols = built[cand.key]
             kept = _span_free(basis, _flat(cols, sw))
