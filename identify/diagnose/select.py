@@ -15,15 +15,16 @@ evidence the BIC margin stands for, measured on recordings the fit never saw: th
 significance asked of its value is `min_z_records` instead of `min_z`. Among the admissible ones the lowest BIC
 wins (the parsimonious explanation: one armature column beats a whole rigid-body refit that fits the same
 data), except between the shapes of one joint's frictionloss (ideal Coulomb and ramps of several widths, one
-coefficient each): the one with the lowest held-out error is taken, and a ramp only where it beats the ideal
-shape by `native_preference` (its width is a choice from a grid). Once a joint's frictionloss is named, its
-viscous friction is tried first, alone, in the next step (the friction law Fc sign(dq) + Fv dq of the
-literature; scored after other effects it would compete with, e.g. a rigid-body refit, its share is gone by the
-time it is tried). It is judged by the rules above, except that where it lowers the held-out error of each of
-three or more records the BIC is not asked of it, and it must also beat, on the held-out data, the best other
-shape of that frictionloss alone, admissible or not (a ramp is one coefficient where the pair is two: MuJoCo's
-own soft frictionloss, a ramp of a few hundredths of a rad/s with sticking, fitted as sign(dq) plus dq, gives the
-dq column a share it does not have). Where it fails, it is not tried again in that step. Columns that the
+coefficient each): the one with the lowest held-out error is taken, each judged beside the joint's viscous friction
+where that is not chosen yet (alone, a ramp wider than the friction takes the viscous part below its width), and a
+ramp only where it beats the ideal shape by `native_preference` (its width is a choice from a grid). Once a joint's
+frictionloss is named, its viscous friction is tried first, alone, in the next step (the friction law Fc sign(dq) +
+Fv dq of the literature; scored after other effects it would compete with, e.g. a rigid-body refit, its share is
+gone by the time it is tried). It is judged by the rules above, except that where it lowers the held-out error of
+each of three or more records the BIC is not asked of it, and it must also beat, on the held-out data, the best
+other shape of that frictionloss alone, admissible or not (a ramp is one coefficient where the pair is two:
+MuJoCo's own soft frictionloss, a ramp of a few hundredths of a rad/s with sticking, fitted as sign(dq) plus dq,
+gives the dq column a share it does not have). Where it fails, it is not tried again in that step. Columns that the
 chosen ones already span are dropped. The best admissible candidate whose value is not `min_z` std from its value
 of no effect (or a time delay shorter than `min_delay_samples`) is set aside until another effect is chosen, and
 then tried again: early in the selection the unmodelled effects leave a correlated residual that inflates every
@@ -71,6 +72,9 @@ from identify.diagnose.statistics import LinearFit, correlation_time, fit_bounde
 __all__ = ["LinearFit", "SelectionOptions", "Step", "fit_columns", "select_effects"]
 
 
+# a candidate as scored: (BIC, candidate, its columns kept, weighted RSS, held-out MSE per fold, columns held
+# nominal)
+_Scored = tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]
 MAX_FOLDS = 50  # cross-validation blocks of one record at most (each must hold a stretch of the motion)
 
 
@@ -321,6 +325,51 @@ def _score_added(
     return _scores(A, b, folds, n_folds, np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]]))
 
 
+def _shape_judge(
+    shapes: list[_Scored],
+    pool: list[Candidate],
+    chosen: list[Step],
+    built: dict[str, np.ndarray],
+    X: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    b: np.ndarray,
+    sw: np.ndarray,
+    folds: np.ndarray,
+    n_folds: int,
+) -> Callable[[_Scored], float]:
+    """The held-out MSE by which the admissible shapes of one joint's frictionloss (`shapes`, as scored) are
+    compared: each beside that joint's viscous friction where it is not chosen yet (the friction law
+    Fc sign(dq) + Fv dq, whose viscous part follows the shape named). Alone, a ramp wider than the joint's
+    friction takes the part of a viscous friction below its width and wins; the viscous friction then follows
+    it, and the ramp is left where the true shape is sharp (a damping and a MuJoCo frictionloss on one
+    two-link elbow: a 0.3 rad/s ramp, then a Stribeck friction for what it left at the reversals)."""
+    target = shapes[0][1].target
+    viscous = [c for c in pool if c.effect == "viscous_friction" and c.target == target and not _taken(c, chosen)]
+
+    def alone(a: _Scored) -> float:
+        return _fold_mse(a[4], folds, n_folds)
+
+    if not viscous:
+        return alone
+    v = viscous[0]
+    judged: dict[str, float] = {}
+    for a in shapes:
+        cand, kept = a[1], a[2]
+        cols = np.concatenate([built[cand.key][:, :, kept], built[v.key]], axis=2)
+        A = _flat(np.concatenate([X, cols], axis=2), sw)
+        held = _scores(
+            A,
+            b,
+            folds,
+            n_folds,
+            np.concatenate([lo, cand.lower[kept], v.lower]),
+            np.concatenate([hi, cand.upper[kept], v.upper]),
+        )[1]
+        judged[cand.key] = _fold_mse(held, folds, n_folds)
+    return lambda a: judged[a[1].key]
+
+
 def _unbounded(lo: np.ndarray, hi: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The bounds `lo`, `hi` extended by unbounded ones for the columns `cols` (n, nv, k)."""
     inf = np.full(cols.shape[2], np.inf)
@@ -416,7 +465,6 @@ def select_effects(
     bic = _bic(rss, n_obs, n_eff, X.shape[2])
     energy = np.sum(e.reshape(n, nv) ** 2, axis=0)  # (nv,) the residual left on each joint
     touched = {c.key: np.any(built[c.key] != 0, axis=(0, 2)) for c in pool}  # the joints a candidate acts on
-    Scored = tuple[float, Candidate, list[int], float, np.ndarray, tuple[str, ...]]
 
     def gain_asked(cand: Candidate) -> float:
         """`min_gain` of the residual on the joints the candidate acts on, as a share of the whole: an effect on
@@ -430,13 +478,15 @@ def select_effects(
         judged = gains[np.isfinite(gains)]
         return gains, judged, kind == "files" and len(judged) >= 3 and bool(np.all(judged >= asked))
 
-    def admissible_among(cands: list[Candidate], shape_mse: float | None = None) -> tuple[Scored | None, list[Scored]]:
+    def admissible_among(
+        cands: list[Candidate], shape_mse: float | None = None
+    ) -> tuple[_Scored | None, list[_Scored]]:
         """(the admissible candidate of lowest BIC or None, every admissible one) among `cands`, given the
         columns chosen so far (X, basis, held, bic of the enclosing loop). `shape_mse`: for the viscous part of a
         frictionloss just named, the held-out MSE of the best other shape of that frictionloss (instead of the one
         named): the pair must beat it too, or a wider ramp is what the viscous column stands for."""
-        best: Scored | None = None
-        admissible: list[Scored] = []
+        best: _Scored | None = None
+        admissible: list[_Scored] = []
         scored.clear()
         free = const[:, :, _span_free(basis, _flat(const, sw))]  # the joints' constants not chosen yet
         Xc, (lo_c, hi_c) = np.concatenate([X, free], axis=2), _unbounded(lo, hi, free)
@@ -510,14 +560,13 @@ def select_effects(
                 best = min(ties, key=lambda a: a[0])
         if best[1].effect in FRICTIONLOSS_EFFECTS:  # shapes of one frictionloss (one coefficient each): held-out error
             shapes = [a for a in admissible if a[1].effect in FRICTIONLOSS_EFFECTS and a[1].target == best[1].target]
-            best = min(shapes, key=lambda a: _fold_mse(a[4], folds, n_folds))
+            shape_mse = _shape_judge(shapes, pool, chosen, built, X, lo, hi, b, sw, folds, n_folds)
+            best = min(shapes, key=shape_mse)
             # the ideal shape unless another holds out clearly better: one with a width picked from a grid, or
             # the one MuJoCo gives a frictionloss at the joint's own solver parameters (a drive's friction is not
             # that constraint: on the DFKI logs it won the training folds by a little and lost the held-out files)
             ideal = [a for a in shapes if a[1].effect == "coulomb_friction" and a[1].variant != SOFT_FRICTION]
-            if ideal and _fold_mse(ideal[0][4], folds, n_folds) * (1 - options.native_preference) <= _fold_mse(
-                best[4], folds, n_folds
-            ):
+            if ideal and shape_mse(ideal[0]) * (1 - options.native_preference) <= shape_mse(best):
                 best = ideal[0]
             others = [  # every other shape of this frictionloss scored in this step, admissible or not
                 c.key
