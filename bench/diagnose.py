@@ -244,6 +244,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
             window_s=float(opts.window_s),
             record_offsets=record_offsets(cfg),  # as sysid-diagnose resolves them (the data config's, here)
             record_joint_offsets=record_joint_offsets(cfg),
+            find_torque_lead=cfg.data.get("tau_lead_s") is None,  # as sysid-diagnose: none declared, found
         )
 
     def judged_on(dg: Any, held: Dataset) -> list[float]:

@@ -316,6 +316,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         check_torque_signs=bool(opts.get("check_torque_signs", True)),
         hard_friction=_hard_friction(cfg),
         mujoco_steps=opts.get("mujoco_steps"),
+        find_torque_lead=cfg.data.get("tau_lead_s") is None,  # not declared: found from the data
     )
 
     def run_diagnosis(train: Sequence[Dataset], **kwargs: Any) -> Diagnosis:  # each fit from the same seed

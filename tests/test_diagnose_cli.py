@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -463,9 +464,11 @@ def test_a_value_at_its_bound_is_printed_without_a_std() -> None:
 )
 def test_a_torque_logged_at_the_start_of_its_hold_is_read_at_its_centre(tmp_path: Path) -> None:
     """The Panda in the testbed's own loop (the torque held over each 2 ms sample, logged at its start), written to
-    CSV, which has no field for that 1 ms lead. Read as sampled at the row's instant, states and torque are 1 ms
-    apart, and clean data were called `explained` by a joint-2 viscous friction of -0.067 N m s/rad; with
-    `data.tau_lead_s=0.001` they are clean."""
+    CSV, which has no field for that 1 ms lead. Read as sampled at the row's instant (`data.tau_lead_s=0`),
+    states and torque are 1 ms apart, and clean data are called `explained` by a joint-2 viscous friction of
+    -0.067 N m s/rad; with `data.tau_lead_s=0.001` they are clean, and so they are with none declared: the lead is
+    found (1 ms to within its std) and the records read with it (before, that was a note, and the verdict the
+    first one's)."""
     from identify.diagnose.testbed import ARMS, rollout, torque_driven
 
     mjcf = torque_driven(SHARED_ROBOTS / "panda_nohand.xml", tmp_path)
@@ -484,14 +487,20 @@ def test_a_torque_logged_at_the_start_of_its_hold_is_read_at_its_centre(tmp_path
         write_csv(data, paths[-1])
     listed = ",".join(str(p) for p in paths)
 
-    def verdict(*extra: str) -> str:
-        out = tmp_path / f"out{len(extra)}"
+    def diagnosis(*extra: str) -> dict[str, Any]:
+        out = tmp_path / f"out{sum(1 for _ in tmp_path.glob('out*'))}"
         overrides = [f"system.mjcf={mjcf}", f"data.path=[{listed}]", f"output_dir={out}", "diagnose.final_fit=false"]
         cfg = compose_config([*overrides, "diagnose.recording=false", *extra], config_name="diagnose")
-        return str(cli.run(cfg)["verdict"])
+        return cli.run(cfg)
 
-    assert verdict() == "explained"
-    assert verdict("data.tau_lead_s=0.001") == "no_discrepancy"
+    assert diagnosis("data.tau_lead_s=0")["verdict"] == "explained"
+    assert diagnosis("data.tau_lead_s=0.001")["verdict"] == "no_discrepancy"
+    found = diagnosis()
+    assert found["verdict"] == "no_discrepancy", found["verdict_reason"]
+    lead = found["info"]["torque_lead_found"]
+    assert abs(lead["read_s"] - 0.001) < 3 * lead["std_s"] and lead["declared_s"] == 0.0, lead
+    assert found["notes"][0].startswith("the measured torque leads the motion by"), found["notes"][0]
+    assert "diagnosed again" in found["notes"][0]
 
 
 def test_the_diagnosis_reads_a_friction_as_the_logs_simulator_applied_it(tmp_path: Path) -> None:

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from dynamics.plant import load_plant
+from envs.dataset import Dataset
 from identify.diagnose import Diagnosis
 from identify.diagnose.calibrate import mjcf_measured_torque
 from identify.diagnose.candidates import candidates
@@ -891,6 +892,45 @@ def test_a_torque_lead_left_undeclared_is_pointed_out_with_its_size() -> None:
                 "may stand in for it (a 2 ms lead on another generator's data was named as "
                 "backlash and a Stribeck friction): declare it and diagnose again"
             )
+
+
+def test_a_torque_lead_found_in_the_data_is_read_and_a_lead_of_samples_is_not() -> None:
+    """`find_torque_lead` (sysid-diagnose with data.tau_lead_s unset): the testbed's 0.75 ms lead, undeclared, is
+    found, the records are read with it and diagnosed again: clean, with no lead left beside the effects. A torque
+    column logged two samples early leads by more than any held torque's timing: it is not read so, and the note
+    says to check the time columns instead of declaring it (which sysid-diagnose refuses at a sample or more)."""
+    import dataclasses
+
+    from identify.diagnose import diagnose
+    from identify.diagnose.testbed import rollout
+
+    rngs = np.random.default_rng(0).spawn(2)
+    plant, train = rollout("two_link", [], rng=rngs[0], duration_s=10.0)
+    _, val = rollout("two_link", [], rng=rngs[1], duration_s=5.0, source="testbed_validation")
+    truth = train.tau_lead_s
+    records = [dataclasses.replace(d, tau_lead_s=0.0) for d in (train, val)]
+
+    def run(recs: list[Dataset]) -> Diagnosis:
+        return diagnose(
+            plant,
+            recs[:1],
+            recs[1:],
+            rng=np.random.default_rng(0),
+            derivative_options={"cutoff_hz": 10.0},
+            find_torque_lead=True,
+        )
+
+    dg = run(records)
+    found, left = dg.info["torque_lead_found"], dg.info["torque_lead"]
+    assert abs(found["read_s"] - truth) < 3 * found["std_s"] and found["declared_s"] == 0.0, found
+    assert abs(left["delay_s"]) < 3 * left["std_s"], left
+    assert dg.verdict == "no_discrepancy", dg.verdict_reason
+    assert dg.notes[0].startswith("the measured torque leads the motion by") and "diagnosed again" in dg.notes[0]
+    early = [dataclasses.replace(d, tau=np.concatenate([d.tau[2:], d.tau[-1:], d.tau[-1:]])) for d in records]
+    dg = run(early)
+    assert "torque_lead_found" not in dg.info
+    (note,) = [n for n in dg.notes if n.startswith("the measured torque leads the motion")]
+    assert "a sample or more" in note and "check the files' time columns" in note, note
 
 
 @pytest.mark.skipif(not (SHARED_ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")

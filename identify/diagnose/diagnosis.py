@@ -10,6 +10,7 @@ residual = measured torque - nominal MJCF torque (inverse dynamics along the mea
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -643,6 +644,7 @@ def diagnose(
     hard_friction: bool = False,
     record_joint_offsets: bool = False,
     mujoco_steps: bool | None = None,
+    find_torque_lead: bool = False,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -684,10 +686,39 @@ def diagnose(
             size, fits the training residual (None: one factor within 1 +- `STEP_SCALE_BAND` and `STEP_MIN_Z` std
             from 0, `_steps_reading`; an armature change of that size on every joint would read the same, and
             the note says so).
+        find_torque_lead: the records' torque lead (`Dataset.tau_lead_s`) is not known: where the measured torque
+            leads the motion clearly (`_found_lead`) by less than a sample, the records are read with that lead
+            and diagnosed again (`info["torque_lead_found"]`, and a note). A lead is no effect of the plant (a
+            sensor reports after the torque acts, `time_delay` >= 0) but the log's timing: a torque held over
+            each sample and logged at its start, as MuJoCo's RK4 or a controller's zero-order hold applies it.
 
     Returns:
         The diagnosis (see `Diagnosis`).
     """
+    if find_torque_lead:
+        return _with_found_lead(
+            partial(
+                diagnose,
+                plant,
+                effects=effects,
+                derivatives=derivatives,
+                derivative_options=derivative_options,
+                selection=selection,
+                window_s=window_s,
+                references=references,
+                band_hz=band_hz,
+                record_offsets=record_offsets,
+                anomalies=anomalies,
+                check_torque_signs=check_torque_signs,
+                hard_friction=hard_friction,
+                record_joint_offsets=record_joint_offsets,
+                mujoco_steps=mujoco_steps,
+            ),
+            train,
+            validation,
+            rng,
+            derivatives,
+        )
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     if record_offsets and record_joint_offsets:
@@ -1790,13 +1821,69 @@ LEAD_Z = 4.0  # a torque lead beside the effects named is pointed out where it i
 LEAD_SAMPLES = 0.2  # ... and at least this share of a sample
 
 
+def _found_lead(lead: tuple[float, float] | None, dt: float) -> bool:
+    """Whether a torque lead (`_torque_lead`: delay, std [s]) is clear of zero and of round-off."""
+    return lead is not None and lead[0] < -LEAD_SAMPLES * dt and -lead[0] > LEAD_Z * lead[1]
+
+
+def _with_found_lead(
+    run: Callable[..., Diagnosis],
+    train: Sequence[Dataset],
+    validation: Sequence[Dataset],
+    rng: np.random.Generator,
+    derivatives: str,
+) -> Diagnosis:
+    """`run(train, validation, rng=rng)`, and where its torque leads the motion clearly (`_found_lead`) by less
+    than a sample in all (the declared `tau_lead_s` with it), the same run again on the records read with that
+    lead, from the same random state. A lead of a sample or more is left to the note (`_lead_note`): no timing
+    of a held torque makes it. States a record gives (`given`, `simulator`) cannot be moved to the torque's
+    instant: read as they are."""
+    again = copy.deepcopy(rng)
+    first = run(train, validation, rng=rng)
+    found = first.info["torque_lead"]
+    lead = None if found is None else (float(found["delay_s"]), float(found["std_s"]))
+    records = [*train, *validation]
+    dt = float(min(d.dt for d in records))
+    declared = float(train[0].tau_lead_s)
+    if derivatives in ("simulator", "given") or lead is None or not _found_lead(lead, dt):
+        return first
+    total = declared - lead[0]
+    if total >= dt:
+        return first
+    dg = run(
+        [dataclasses.replace(d, tau_lead_s=total) for d in train],
+        [dataclasses.replace(d, tau_lead_s=total) for d in validation],
+        rng=again,
+    )
+    dg.info["torque_lead_found"] = {"delay_s": lead[0], "std_s": lead[1], "declared_s": declared, "read_s": total}
+    dg.notes.insert(
+        0,
+        f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
+        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named first): the torque of each row acted over "
+        f"an interval centred {total * 1e3:.3g} ms after it (half a sample for a torque held over each sample and "
+        "logged at its start, as MuJoCo's RK4 step or a zero-order hold applies it); the records were read so and "
+        "diagnosed again. Declare data.tau_lead_s to read them otherwise (0: each torque at its row)",
+    )
+    return dg
+
+
 def _lead_note(lead: tuple[float, float] | None, dt: float, declared: float) -> list[str]:
     """The note on a torque that leads the motion (`_torque_lead`), where it is clear of zero and of round-off."""
-    if lead is None or not (lead[0] < -LEAD_SAMPLES * dt and -lead[0] > LEAD_Z * lead[1]):
+    if lead is None or not _found_lead(lead, dt):
         return []
-    return [
+    size = (
         f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
-        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named): a torque held over each sample and logged "
+        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named)"
+    )
+    if declared - lead[0] >= dt:  # no timing of a held torque: it acts within the sample it is logged for
+        return [
+            f"{size}: with the {declared:g} s declared (data.tau_lead_s) that is a sample or more, more than a torque "
+            "held over each sample makes (half a sample); the torque and the angles were logged at different "
+            "instants: check the files' time columns. A lead left so is fitted as armature and a negative change "
+            "of damping, and the effects named beside it may stand in for it"
+        ]
+    return [
+        f"{size}: a torque held over each sample and logged "
         "at its start acts centred half a sample after its row, which data.tau_lead_s declares "
         f"(now {declared:g} s); a lead left undeclared is fitted as armature and a negative change of damping, "
         "and the effects named beside it may stand in for it (a 2 ms lead on another generator's data was named as "
