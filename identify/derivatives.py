@@ -112,6 +112,38 @@ def gradient(f: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
+# The fourth-order terms are added where second-order differences lose more than `SECOND_ORDER_LOSS` of the
+# acceleration at the cut-off ((sin x / x)^2 at x = w h: above 1/36 of the rate; a 100 Hz log at 10 Hz, not a 500 Hz
+# one, whose states stay as they were) and where the filter keeps no more than `FOURTH_ORDER_BAND` of the rate
+# (x <= pi / 4): Taylor terms, they amplify what is left near the Nyquist rate (the fourth difference by 16 / 3 at
+# x = pi, where the gradient of the gradient passes nothing), at a cut-off of 0.4 of the rate the filter's start-up.
+SECOND_ORDER_LOSS = 0.01
+FOURTH_ORDER_BAND = 0.125
+
+
+def _needs_fourth_order(cutoff: float, fs: float) -> bool:
+    x = 2 * np.pi * cutoff / fs
+    return bool(1 - (np.sin(x) / x) ** 2 > SECOND_ORDER_LOSS and cutoff <= FOURTH_ORDER_BAND * fs)
+
+
+def _fourth_order(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, h: float) -> None:
+    """Raise `dq` = `gradient`(q) and `ddq` = `gradient`(dq) (second order) to fourth order in place, on the rows
+    with two neighbours each side, by their leading truncation terms on the uniform step h: q''' h^2 / 6 and
+    q'''' h^2 / 3. A sine of x = w h radians per sample came out scaled by sin(x) / x and (sin(x) / x)^2: at a
+    100 Hz log's 10 Hz cut-off 0.94 and 0.83 (clean two-link data were named a shoulder torque gain of 1.0015
+    and an elbow armature), now 1 - x^4 / 30 and 1 - x^4 / 90 to leading order (0.995 and 0.998 there).
+
+    The terms are those of the uniform grid (a log's step jitters by 1 % at most, `_regular_fs`); the second-order
+    part keeps the actual time stamps."""
+    if len(q) < 5:
+        return
+    inner = slice(2, len(q) - 2)
+    third = (q[4:] - q[:-4]) - 2 * (q[3:-1] - q[1:-3])  # 2 h^3 q''': the central third difference
+    fourth = (q[4:] + q[:-4]) - 4 * (q[3:-1] + q[1:-3]) + 6 * q[2:-2]  # h^4 q'''': the fourth difference
+    dq[inner] -= third / (12 * h)
+    ddq[inner] -= fourth / (3 * h**2)
+
+
 def _regular_fs(data: Dataset) -> float:
     jitter = np.max(np.abs(np.diff(data.time) - data.dt)) / data.dt
     if jitter > 0.01:
@@ -183,6 +215,8 @@ def _butterworth(
         q = signal.sosfiltfilt(sos, data.q, axis=0)
         dq = gradient(q, data.time)
         ddq = gradient(dq, data.time)
+        if _needs_fourth_order(cutoff, fs):
+            _fourth_order(q, dq, ddq, data.dt)
         trim = int(np.ceil((trim_s if trim_s is not None else 3.0 / cutoff) * fs))
         valid = np.zeros(data.n_samples, bool)
         valid[trim : data.n_samples - trim - 1] = True
@@ -193,8 +227,13 @@ def _butterworth(
         wrapped = np.concatenate([data.q[n - pad : n], data.q[:n], data.q[:pad]])
         smooth = signal.sosfiltfilt(sos, wrapped, axis=0, padtype=None)[pad : pad + n]
         q[:n] = smooth
-        dq[:n] = (np.roll(smooth, -1, axis=0) - np.roll(smooth, 1, axis=0)) * (0.5 * fs)
-        ddq[:n] = (np.roll(smooth, -1, axis=0) - 2 * smooth + np.roll(smooth, 1, axis=0)) * fs**2
+        ahead1, behind1 = np.roll(smooth, -1, axis=0), np.roll(smooth, 1, axis=0)
+        ahead2, behind2 = np.roll(smooth, -2, axis=0), np.roll(smooth, 2, axis=0)
+        dq[:n] = (ahead1 - behind1) * (0.5 * fs)
+        ddq[:n] = (ahead1 - 2 * smooth + behind1) * fs**2
+        if _needs_fourth_order(cutoff, fs):  # fourth order, as `_fourth_order`
+            dq[:n] -= ((ahead2 - behind2) - 2 * (ahead1 - behind1)) * (fs / 12)
+            ddq[:n] -= ((ahead2 + behind2) - 4 * (ahead1 + behind1) + 6 * smooth) * (fs**2 / 12)
         valid = np.arange(data.n_samples) < n
     else:
         raise ValueError(f"unknown edges {edges!r}; valid choices: periodic, trim")
