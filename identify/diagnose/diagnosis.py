@@ -1858,23 +1858,27 @@ def _with_found_lead(
     dg.info["torque_lead_found"] = {"delay_s": lead[0], "std_s": lead[1], "declared_s": declared, "read_s": total}
     dg.notes.insert(
         0,
-        f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
-        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named first): the torque of each row acted over "
-        f"an interval centred {total * 1e3:.3g} ms after it (half a sample for a torque held over each sample and "
-        "logged at its start, as MuJoCo's RK4 step or a zero-order hold applies it); the records were read so and "
-        "diagnosed again. Declare data.tau_lead_s to read them otherwise (0: each torque at its row)",
+        f"{_lead_size(lead, dt)} first): the torque of each row acted over an interval centred "
+        f"{total * 1e3:.3g} ms after it (half a sample for a torque held over each sample and logged at its start, "
+        "as MuJoCo's RK4 step or a zero-order hold applies it); the records were read so and diagnosed again. "
+        "Declare data.tau_lead_s to read them otherwise (0: each torque at its row)",
     )
     return dg
+
+
+def _lead_size(lead: tuple[float, float], dt: float) -> str:
+    """The start of a note on a torque lead (delay, std [s]) at the sample interval dt, its parenthesis open."""
+    return (
+        f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
+        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named"
+    )
 
 
 def _lead_note(lead: tuple[float, float] | None, dt: float, declared: float) -> list[str]:
     """The note on a torque that leads the motion (`_torque_lead`), where it is clear of zero and of round-off."""
     if lead is None or not _found_lead(lead, dt):
         return []
-    size = (
-        f"the measured torque leads the motion by {-lead[0] * 1e3:.3g} ms ({-lead[0] / dt:.2g} samples; "
-        f"{-lead[0] / lead[1]:.1f} std, fitted beside the effects named)"
-    )
+    size = f"{_lead_size(lead, dt)})"
     if declared - lead[0] >= dt:  # no timing of a held torque: it acts within the sample it is logged for
         return [
             f"{size}: with the {declared:g} s declared (data.tau_lead_s) that is a sample or more, more than a torque "
