@@ -468,7 +468,7 @@ def test_a_torque_logged_at_the_start_of_its_hold_is_read_at_its_centre(tmp_path
     states and torque are 1 ms apart, and clean data are called `explained` by a joint-2 viscous friction of
     -0.067 N m s/rad; with `data.tau_lead_s=0.001` they are clean, and so they are with none declared: the lead is
     found (1 ms to within its std) and the records read with it (before, that was a note, and the verdict the
-    first one's)."""
+    first one's; the declared 0.001 is tested no more, the found 0.88 ms standing for it)."""
     from identify.diagnose.testbed import ARMS, rollout, torque_driven
 
     mjcf = torque_driven(SHARED_ROBOTS / "panda_nohand.xml", tmp_path)
@@ -494,7 +494,6 @@ def test_a_torque_logged_at_the_start_of_its_hold_is_read_at_its_centre(tmp_path
         return cli.run(cfg)
 
     assert diagnosis("data.tau_lead_s=0")["verdict"] == "explained"
-    assert diagnosis("data.tau_lead_s=0.001")["verdict"] == "no_discrepancy"
     found = diagnosis()
     assert found["verdict"] == "no_discrepancy", found["verdict_reason"]
     lead = found["info"]["torque_lead_found"]
