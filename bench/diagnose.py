@@ -54,6 +54,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -71,7 +72,7 @@ from envs.measured import read_many
 from harness.diagnose import record_joint_offsets, record_offsets
 from harness.setup import CONF_DIR
 from identify.derivatives import States, derive_states
-from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model
+from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model, with_found_lead
 from identify.diagnose.authors import author_regressor
 from identify.diagnose.calibrate import mjcf_measured_torque
 
@@ -231,11 +232,9 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
     refit = lab_form(datasets, next(iter(authors.values())))
 
     def run(train: list[Dataset], validation: list[Dataset]) -> Any:
-        return diagnose(
+        fit = partial(
+            diagnose,
             plant,
-            train,
-            validation,
-            rng=np.random.default_rng(0),
             effects=tuple(opts.effects),
             derivatives=str(opts.derivatives),
             derivative_options={"cutoff_hz": float(opts.cutoff_hz)},
@@ -244,8 +243,10 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
             window_s=float(opts.window_s),
             record_offsets=record_offsets(cfg),  # as sysid-diagnose resolves them (the data config's, here)
             record_joint_offsets=record_joint_offsets(cfg),
-            find_torque_lead=cfg.data.get("tau_lead_s") is None,  # as sysid-diagnose: none declared, found
         )
+        if cfg.data.get("tau_lead_s") is None:  # as sysid-diagnose: none declared, found from the data
+            return with_found_lead(fit, train, validation, np.random.default_rng(0))
+        return fit(train, validation, rng=np.random.default_rng(0))
 
     def judged_on(dg: Any, held: Dataset) -> list[float]:
         with tempfile.TemporaryDirectory() as tmp:

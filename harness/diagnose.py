@@ -49,6 +49,7 @@ from identify.diagnose import (
     diagnose,
     find_anomalies,
     load_author_model,
+    with_found_lead,
 )
 from identify.diagnose.anomalies import still_joints
 from identify.diagnose.residuals import noise_floor
@@ -316,11 +317,14 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         check_torque_signs=bool(opts.get("check_torque_signs", True)),
         hard_friction=_hard_friction(cfg),
         mujoco_steps=opts.get("mujoco_steps"),
-        find_torque_lead=cfg.data.get("tau_lead_s") is None,  # not declared: found from the data
     )
+    lead_unknown = cfg.data.get("tau_lead_s") is None  # not declared: found from the data
 
     def run_diagnosis(train: Sequence[Dataset], **kwargs: Any) -> Diagnosis:  # each fit from the same seed
-        return fit(train, split.validation, rng=np.random.default_rng(int(cfg.seed)), **kwargs)
+        run, rng = partial(fit, **kwargs), np.random.default_rng(int(cfg.seed))
+        if lead_unknown:
+            return with_found_lead(run, train, split.validation, rng)
+        return run(train, split.validation, rng=rng)
 
     result = run_diagnosis(split.train, references=references)
     mjcf_name, final_name = _mjcf_names(plant.name)

@@ -138,10 +138,17 @@ def _fourth_order(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, h: float) -> N
     if len(q) < 5:
         return
     inner = slice(2, len(q) - 2)
-    third = (q[4:] - q[:-4]) - 2 * (q[3:-1] - q[1:-3])  # 2 h^3 q''': the central third difference
-    fourth = (q[4:] + q[:-4]) - 4 * (q[3:-1] + q[1:-3]) + 6 * q[2:-2]  # h^4 q'''': the fourth difference
+    third, fourth = _differences(q)
     dq[inner] -= third / (12 * h)
     ddq[inner] -= fourth / (3 * h**2)
+
+
+def _differences(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The central third and fourth differences of `x` (N, ...) on its rows with two neighbours each side (N - 4):
+    2 h^3 x''' and h^4 x'''' to leading order."""
+    third = (x[4:] - x[:-4]) - 2 * (x[3:-1] - x[1:-3])
+    fourth = (x[4:] + x[:-4]) - 4 * (x[3:-1] + x[1:-3]) + 6 * x[2:-2]
+    return third, fourth
 
 
 def _regular_fs(data: Dataset) -> float:
@@ -227,13 +234,13 @@ def _butterworth(
         wrapped = np.concatenate([data.q[n - pad : n], data.q[:n], data.q[:pad]])
         smooth = signal.sosfiltfilt(sos, wrapped, axis=0, padtype=None)[pad : pad + n]
         q[:n] = smooth
-        ahead1, behind1 = np.roll(smooth, -1, axis=0), np.roll(smooth, 1, axis=0)
-        ahead2, behind2 = np.roll(smooth, -2, axis=0), np.roll(smooth, 2, axis=0)
-        dq[:n] = (ahead1 - behind1) * (0.5 * fs)
-        ddq[:n] = (ahead1 - 2 * smooth + behind1) * fs**2
-        if _needs_fourth_order(cutoff, fs):  # fourth order, as `_fourth_order`
-            dq[:n] -= ((ahead2 - behind2) - 2 * (ahead1 - behind1)) * (fs / 12)
-            ddq[:n] -= ((ahead2 + behind2) - 4 * (ahead1 + behind1) + 6 * smooth) * (fs**2 / 12)
+        ahead, behind = np.roll(smooth, -1, axis=0), np.roll(smooth, 1, axis=0)
+        dq[:n] = (ahead - behind) * (0.5 * fs)
+        ddq[:n] = (ahead - 2 * smooth + behind) * fs**2
+        if _needs_fourth_order(cutoff, fs):  # as `_fourth_order`, on the three-point second difference
+            third, fourth = _differences(np.concatenate([smooth[-2:], smooth, smooth[:2]]))  # one period, wrapped
+            dq[:n] -= third * (fs / 12)
+            ddq[:n] -= fourth * (fs**2 / 12)
         valid = np.arange(data.n_samples) < n
     else:
         raise ValueError(f"unknown edges {edges!r}; valid choices: periodic, trim")

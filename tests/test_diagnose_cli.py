@@ -553,7 +553,9 @@ def test_record_joint_offsets_reach_the_diagnosis(
     original = cli.diagnose
     monkeypatch.setattr(cli, "diagnose", spy)
     payload = cli.run(_config(csv_files, tmp_path, "diagnose.recording=false", "+data.record_joint_offsets=true"))
-    assert seen == [True, True]
+    # each fit twice: the simulator's torque, held over each sample, leads its rows; found and read (with_found_lead)
+    assert "torque_lead_found" in payload["info"]
+    assert seen == [True, True, True, True]
     assert [Path(r["source"]).name for r in payload["final_fit"]["record_joint_offsets"]] == [
         "train.csv",
         "validation.csv",
@@ -571,7 +573,8 @@ def test_mujoco_steps_reaches_both_fits(csv_files: list[Path], tmp_path: Path, m
     original = cli.diagnose
     monkeypatch.setattr(cli, "diagnose", spy)
     payload = cli.run(_config(csv_files, tmp_path, "diagnose.recording=false", "diagnose.mujoco_steps=true"))
-    assert seen == [True, True]
+    assert "torque_lead_found" in payload["info"]  # each fit twice: the held torque's lead found and read
+    assert seen == [True, True, True, True]
     assert payload["info"]["mujoco_steps"]["read"] and payload["info"]["mujoco_steps"]["asked"] is True
     assert payload["final_fit"]["mujoco_steps"]["read"]
 

@@ -913,14 +913,13 @@ def test_clean_data_logged_at_100_hz_have_no_discrepancy(seed: int) -> None:
 
 
 def test_a_torque_lead_found_in_the_data_is_read_and_a_lead_of_samples_is_not() -> None:
-    """`find_torque_lead` (sysid-diagnose with data.tau_lead_s unset): the testbed's 0.75 ms lead, undeclared, is
+    """`with_found_lead` (sysid-diagnose with data.tau_lead_s unset): the testbed's 0.75 ms lead, undeclared, is
     found, the records are read with it and diagnosed again: clean, with no lead left beside the effects. A torque
     column logged two samples early leads by more than any held torque's timing: it is not read so, and the note
     says to check the time columns instead of declaring it (which sysid-diagnose refuses at a sample or more)."""
-    import dataclasses
+    from functools import partial
 
-    from identify.diagnose import diagnose
-    from identify.diagnose.testbed import rollout
+    from identify.diagnose import diagnose, with_found_lead
 
     rngs = np.random.default_rng(0).spawn(2)
     plant, train = rollout("two_link", [], rng=rngs[0], duration_s=10.0)
@@ -929,14 +928,8 @@ def test_a_torque_lead_found_in_the_data_is_read_and_a_lead_of_samples_is_not() 
     records = [dataclasses.replace(d, tau_lead_s=0.0) for d in (train, val)]
 
     def run(recs: list[Dataset]) -> Diagnosis:
-        return diagnose(
-            plant,
-            recs[:1],
-            recs[1:],
-            rng=np.random.default_rng(0),
-            derivative_options={"cutoff_hz": 10.0},
-            find_torque_lead=True,
-        )
+        fit = partial(diagnose, plant, derivative_options={"cutoff_hz": 10.0})
+        return with_found_lead(fit, recs[:1], recs[1:], np.random.default_rng(0))
 
     dg = run(records)
     found, left = dg.info["torque_lead_found"], dg.info["torque_lead"]

@@ -8,7 +8,7 @@ from identify.diagnose.anomalies import Anomaly, find_anomalies
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
 from identify.diagnose.calibrate import Extension, calibrated_xml, frictionloss_mapping, predict_measured_torque
 from identify.diagnose.candidates import CANDIDATE_EFFECTS, Candidate, Signals, candidates
-from identify.diagnose.diagnosis import DEFAULT_EFFECTS, Diagnosis, Finding, ReferenceModel, diagnose
+from identify.diagnose.diagnosis import DEFAULT_EFFECTS, Diagnosis, Finding, ReferenceModel, diagnose, with_found_lead
 from identify.diagnose.residuals import analyse_residual, noise_floor, whiteness
 from identify.diagnose.select import SelectionOptions, select_effects
 from identify.diagnose.simulation_error import SimulationError, simulation_error
@@ -40,4 +40,5 @@ __all__ = [
     "select_effects",
     "simulation_error",
     "whiteness",
+    "with_found_lead",
 ]

@@ -76,6 +76,7 @@ __all__ = [
     "analysis_band",
     "check_torque_columns",
     "diagnose",
+    "with_found_lead",
 ]
 
 DEFAULT_EFFECTS = (
@@ -644,7 +645,6 @@ def diagnose(
     hard_friction: bool = False,
     record_joint_offsets: bool = False,
     mujoco_steps: bool | None = None,
-    find_torque_lead: bool = False,
 ) -> Diagnosis:
     """Diagnose the nominal MJCF of `plant` on measured records.
 
@@ -686,39 +686,10 @@ def diagnose(
             size, fits the training residual (None: one factor within 1 +- `STEP_SCALE_BAND` and `STEP_MIN_Z` std
             from 0, `_steps_reading`; an armature change of that size on every joint would read the same, and
             the note says so).
-        find_torque_lead: the records' torque lead (`Dataset.tau_lead_s`) is not known: where the measured torque
-            leads the motion clearly (`_found_lead`) by less than a sample, the records are read with that lead
-            and diagnosed again (`info["torque_lead_found"]`, and a note). A lead is no effect of the plant (a
-            sensor reports after the torque acts, `time_delay` >= 0) but the log's timing: a torque held over
-            each sample and logged at its start, as MuJoCo's RK4 or a controller's zero-order hold applies it.
 
     Returns:
         The diagnosis (see `Diagnosis`).
     """
-    if find_torque_lead:
-        return _with_found_lead(
-            partial(
-                diagnose,
-                plant,
-                effects=effects,
-                derivatives=derivatives,
-                derivative_options=derivative_options,
-                selection=selection,
-                window_s=window_s,
-                references=references,
-                band_hz=band_hz,
-                record_offsets=record_offsets,
-                anomalies=anomalies,
-                check_torque_signs=check_torque_signs,
-                hard_friction=hard_friction,
-                record_joint_offsets=record_joint_offsets,
-                mujoco_steps=mujoco_steps,
-            ),
-            train,
-            validation,
-            rng,
-            derivatives,
-        )
     if not train or not validation:
         raise ValueError("diagnose needs at least one training and one validation record")
     if record_offsets and record_joint_offsets:
@@ -1821,31 +1792,31 @@ LEAD_Z = 4.0  # a torque lead beside the effects named is pointed out where it i
 LEAD_SAMPLES = 0.2  # ... and at least this share of a sample
 
 
-def _found_lead(lead: tuple[float, float] | None, dt: float) -> bool:
+def _found_lead(lead: tuple[float, float], dt: float) -> bool:
     """Whether a torque lead (`_torque_lead`: delay, std [s]) is clear of zero and of round-off."""
-    return lead is not None and lead[0] < -LEAD_SAMPLES * dt and -lead[0] > LEAD_Z * lead[1]
+    return lead[0] < -LEAD_SAMPLES * dt and -lead[0] > LEAD_Z * lead[1]
 
 
-def _with_found_lead(
-    run: Callable[..., Diagnosis],
-    train: Sequence[Dataset],
-    validation: Sequence[Dataset],
-    rng: np.random.Generator,
-    derivatives: str,
+def with_found_lead(
+    run: Callable[..., Diagnosis], train: Sequence[Dataset], validation: Sequence[Dataset], rng: np.random.Generator
 ) -> Diagnosis:
-    """`run(train, validation, rng=rng)`, and where its torque leads the motion clearly (`_found_lead`) by less
+    """`run(train, validation, rng=rng)` (a `diagnose` with its options bound) for records whose torque lead
+    (`Dataset.tau_lead_s`) is not known: where the measured torque leads the motion clearly (`_found_lead`) by less
     than a sample in all (the declared `tau_lead_s` with it), the same run again on the records read with that
-    lead, from the same random state. A lead of a sample or more is left to the note (`_lead_note`): no timing
-    of a held torque makes it. States a record gives (`given`, `simulator`) cannot be moved to the torque's
-    instant: read as they are."""
+    lead, from the same random state (`info["torque_lead_found"]`, and a note). A lead is no effect of the plant (a
+    sensor reports after the torque acts, `time_delay` >= 0) but the log's timing: a torque held over each sample
+    and logged at its start, as MuJoCo's RK4 or a controller's zero-order hold applies it. A lead of a sample or
+    more is left to the note (`_lead_note`): no timing of a held torque makes it. States a record gives (`given`,
+    `simulator`) cannot be moved to the torque's instant: read as they are."""
     again = copy.deepcopy(rng)
     first = run(train, validation, rng=rng)
     found = first.info["torque_lead"]
-    lead = None if found is None else (float(found["delay_s"]), float(found["std_s"]))
-    records = [*train, *validation]
-    dt = float(min(d.dt for d in records))
+    dt = float(min(d.dt for d in [*train, *validation]))
+    if found is None or first.info["derivatives"]["method"] in ("simulator", "given"):
+        return first
+    lead = (float(found["delay_s"]), float(found["std_s"]))
     declared = float(train[0].tau_lead_s)
-    if derivatives in ("simulator", "given") or lead is None or not _found_lead(lead, dt):
+    if not _found_lead(lead, dt):
         return first
     total = declared - lead[0]
     if total >= dt:

@@ -325,51 +325,6 @@ def _score_added(
     return _scores(A, b, folds, n_folds, np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]]))
 
 
-def _shape_judge(
-    shapes: list[_Scored],
-    pool: list[Candidate],
-    chosen: list[Step],
-    built: dict[str, np.ndarray],
-    X: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    b: np.ndarray,
-    sw: np.ndarray,
-    folds: np.ndarray,
-    n_folds: int,
-) -> Callable[[_Scored], float]:
-    """The held-out MSE by which the admissible shapes of one joint's frictionloss (`shapes`, as scored) are
-    compared: each beside that joint's viscous friction where it is not chosen yet (the friction law
-    Fc sign(dq) + Fv dq, whose viscous part follows the shape named). Alone, a ramp wider than the joint's
-    friction takes the part of a viscous friction below its width and wins; the viscous friction then follows
-    it, and the ramp is left where the true shape is sharp (a damping and a MuJoCo frictionloss on one
-    two-link elbow: a 0.3 rad/s ramp, then a Stribeck friction for what it left at the reversals)."""
-    target = shapes[0][1].target
-    viscous = [c for c in pool if c.effect == "viscous_friction" and c.target == target and not _taken(c, chosen)]
-
-    def alone(a: _Scored) -> float:
-        return _fold_mse(a[4], folds, n_folds)
-
-    if not viscous:
-        return alone
-    v = viscous[0]
-    judged: dict[str, float] = {}
-    for a in shapes:
-        cand, kept = a[1], a[2]
-        cols = np.concatenate([built[cand.key][:, :, kept], built[v.key]], axis=2)
-        A = _flat(np.concatenate([X, cols], axis=2), sw)
-        held = _scores(
-            A,
-            b,
-            folds,
-            n_folds,
-            np.concatenate([lo, cand.lower[kept], v.lower]),
-            np.concatenate([hi, cand.upper[kept], v.upper]),
-        )[1]
-        judged[cand.key] = _fold_mse(held, folds, n_folds)
-    return lambda a: judged[a[1].key]
-
-
 def _unbounded(lo: np.ndarray, hi: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The bounds `lo`, `hi` extended by unbounded ones for the columns `cols` (n, nv, k)."""
     inf = np.full(cols.shape[2], np.inf)
@@ -535,6 +490,26 @@ def select_effects(
                 best = (bic_c, cand, kept, rss_c, held_c, held_nominal)
         return best, admissible
 
+    def shape_mse(shapes: list[_Scored]) -> Callable[[_Scored], float]:
+        """The held-out MSE by which the admissible shapes of one joint's frictionloss (`shapes`, as scored) are
+        compared: each beside that joint's viscous friction where it is not chosen yet (the friction law
+        Fc sign(dq) + Fv dq, whose viscous part follows the shape named). Alone, a ramp wider than the joint's
+        friction takes the part of a viscous friction below its width and wins; the viscous friction then follows
+        it, and the ramp is left where the true shape is sharp (a damping and a MuJoCo frictionloss on one
+        two-link elbow: a 0.3 rad/s ramp, then a Stribeck friction for what it left at the reversals)."""
+        target = shapes[0][1].target
+        viscous = [c for c in pool if c.effect == "viscous_friction" and c.target == target and not _taken(c, chosen)]
+        if not viscous:
+            return lambda a: _fold_mse(a[4], folds, n_folds)
+        v = viscous[0]
+        judged: dict[str, float] = {}
+        for _, cand, kept, *_ in shapes:  # the shape's columns beside the chosen ones, then the viscous one added
+            with_shape = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
+            lo_s, hi_s = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
+            held = _score_added(with_shape, lo_s, hi_s, built[v.key], v, b, sw, folds, n_folds, [0])[1]
+            judged[cand.key] = _fold_mse(held, folds, n_folds)
+        return lambda a: judged[a[1].key]
+
     scored: dict[str, float] = {}  # held-out MSE of every candidate scored by the last admissible_among
     follow: list[Candidate] = []  # tried first, alone: the viscous part of a joint whose frictionloss was named
     other_shapes = np.inf  # the held-out MSE of the best other shape of that frictionloss
@@ -560,13 +535,13 @@ def select_effects(
                 best = min(ties, key=lambda a: a[0])
         if best[1].effect in FRICTIONLOSS_EFFECTS:  # shapes of one frictionloss (one coefficient each): held-out error
             shapes = [a for a in admissible if a[1].effect in FRICTIONLOSS_EFFECTS and a[1].target == best[1].target]
-            shape_mse = _shape_judge(shapes, pool, chosen, built, X, lo, hi, b, sw, folds, n_folds)
-            best = min(shapes, key=shape_mse)
+            judge = shape_mse(shapes)
+            best = min(shapes, key=judge)
             # the ideal shape unless another holds out clearly better: one with a width picked from a grid, or
             # the one MuJoCo gives a frictionloss at the joint's own solver parameters (a drive's friction is not
             # that constraint: on the DFKI logs it won the training folds by a little and lost the held-out files)
             ideal = [a for a in shapes if a[1].effect == "coulomb_friction" and a[1].variant != SOFT_FRICTION]
-            if ideal and shape_mse(ideal[0]) * (1 - options.native_preference) <= shape_mse(best):
+            if ideal and judge(ideal[0]) * (1 - options.native_preference) <= judge(best):
                 best = ideal[0]
             others = [  # every other shape of this frictionloss scored in this step, admissible or not
                 c.key
