@@ -28,7 +28,7 @@ lint: $(STAMP)
 	$(BIN)/mypy dynamics envs excitation identify harness
 
 test: lint
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 --dist worksteal -q
 
 bench: $(VENV)/.installed-bench
 	$(BIN)/python -m bench
