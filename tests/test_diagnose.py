@@ -399,3 +399,33 @@ def test_a_band_above_the_state_cut_off_is_lowered_and_said(tmp_path: Path) -> N
     below = run_diagnosis(plant, train, validation, effects=("torque_offset",), band_hz=5.0)
     assert below.info["band_hz"] == 5.0
     assert not any(n.startswith("band_hz") for n in below.notes)
+
+
+def test_a_payload_is_confounded_with_what_makes_its_torque_not_only_its_mass_column() -> None:
+    """A payload's columns are a point mass at the body's origin and the first and second moments that move and
+    spread it; the finding is the torque its coefficients make. On the Panda a mass on joint 7's axis was named
+    `payload link6` without link 7, whose columns make that torque but not the mass column at link 6's origin.
+    Here a payload's two columns h and m with coefficients (1, 1), and an alternative whose one column is h + m:
+    not confounded by the headline h alone, confounded by the torque."""
+    from identify.diagnose.candidates import Candidate
+    from identify.diagnose.diagnosis import Finding, _with_confounding
+    from identify.diagnose.select import SelectionOptions, Step
+    from identify.diagnose.statistics import LinearFit
+
+    rng = np.random.default_rng(0)
+    h, m = rng.normal(size=(2, 400))
+    X = np.stack([h, m], axis=-1)[:, None, :]  # (N, nv = 1, 2)
+
+    def candidate(target: str, columns: np.ndarray, names: tuple[str, ...]) -> Candidate:
+        return Candidate("payload", target, "kg", "body inertial", names, lambda s: columns, lambda c, v, x: (0.0, 0.0))
+
+    chosen = candidate("link6", X, ("dm6", "dmx6"))
+    other = candidate("link7", (h + m)[:, None, None], ("dm7",))
+    signals = type("Signals", (), {"columns": staticmethod(lambda c: c.build(None))})()
+    fit = LinearFit(coef=np.ones(2), cov=1e-4 * np.eye(2), sigma=np.ones(1), at_bound=np.zeros(2), correlation_time=1.0)
+    finding = Finding("payload", "link6", 1.0, 0.01, "kg", "body inertial", {}, {})
+    step = Step(chosen, np.arange(2), -100.0, 1.0, 0.5)
+    (out,) = _with_confounding(
+        [finding], [step], [chosen, other], signals, np.ones(1), X, 0, fit, SelectionOptions(), min_z=3.0
+    )
+    assert [(c["effect"], c["target"]) for c in out.confounded_with] == [("payload", "link7")], out.confounded_with

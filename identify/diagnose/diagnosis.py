@@ -1205,6 +1205,8 @@ def _with_confounding(
     that explains it; `_explains`). Another finding is such an alternative the same way: with its columns the
     rest leave less than that, without them more (a shoulder joint offset and a rigid-body change chosen one
     after the other: on a planar arm the offset only turns the first moments, which the rigid-body columns hold).
+    A rigid-body finding is judged by the torque its coefficients make instead (`_torque_alternatives`), and a
+    payload by both: its headline, and the torque it makes.
 
     The other way round, a payload's inertia can absorb an inertial effect of a joint (`ABSORBED`): the
     alternative's headline column lies (to within the selection's `min_independence`) in the span of the
@@ -1237,7 +1239,7 @@ def _with_confounding(
             cols = list(range(int(start[i]), int(start[i + 1])))
             out.append(
                 _confounded(
-                    f, st.candidate, _rigid_alternatives(cols, others, alternatives, offsets, gram, fit, selection)
+                    f, st.candidate, _torque_alternatives(cols, others, alternatives, offsets, gram, fit, selection)
                 )
             )
             continue
@@ -1276,6 +1278,14 @@ def _with_confounding(
                 alts.append(
                     {"effect": c.effect, "target": c.target, "independence": absorbed, "value": value, "std": std}
                 )
+        if st.candidate.effect == "payload":  # what a body's change does is its torque, not its mass column
+            cols = list(range(int(start[i]), int(start[i + 1])))
+            named = {(a["effect"], a["target"]) for a in alts}
+            alts += [
+                a
+                for a in _torque_alternatives(cols, others, alternatives, offsets, gram, fit, selection)
+                if (a["effect"], a["target"]) not in named
+            ]
         out.append(_confounded(f, st.candidate, alts))
     return out
 
@@ -1298,7 +1308,7 @@ def _confounded(f: Finding, cand: Candidate, alts: list[dict[str, Any]]) -> Find
     return dataclasses.replace(f, confounded_with=unique, separate_by=sep)
 
 
-def _rigid_alternatives(
+def _torque_alternatives(
     own: list[int],
     others: list[int],
     alternatives: list[Candidate],
@@ -1307,9 +1317,13 @@ def _rigid_alternatives(
     fit: LinearFit,
     selection: SelectionOptions,
 ) -> list[dict[str, Any]]:
-    """The effects not chosen that do on these data what a rigid-body finding's change does (`confounded_with`).
+    """The effects not chosen that do on these data what a rigid-body or payload finding's change does
+    (`confounded_with`).
 
-    The rigid-body change is many columns and no headline; what it does is the torque its coefficients make. An
+    The rigid-body change is many columns and no headline; what it does is the torque its coefficients make. So
+    is a payload's: its mass column is a point mass at the body's origin, its first moments move it, and a payload
+    on the Panda's last joint axis (which loads joints 1-6 as a mass on link 6 does) was named `payload link6`
+    without link 7, whose columns make the same torque but not the mass column at link 6's origin. An
     alternative does the same where, with the other findings, its columns leave less than `confound_independence`
     of that torque (in norm) and the others alone leave more (`_explains`). An encoder offset on a planar arm's
     joint turns the first moments of the links beyond it, which is a rigid-body change: the lab-model generator's

@@ -10,7 +10,8 @@ as a real driver logs it.
 
 Effects (`Injected.effect`):
 - in the diagnosis's vocabulary: `viscous_friction`, `coulomb_friction` (MuJoCo frictionloss), `armature`,
-  `payload` (mass added to the joint's body at its centre of mass), `joint_stiffness`, `cogging`
+  `payload` (mass added to the joint's body at its centre of mass, or with `extra` a point mass on the joint's
+  axis, `extra` metres from its anchor), `joint_stiffness`, `cogging`
   (size sin(extra q)), `stribeck_friction` (size sign(dq) exp(-(dq / extra)^2)), `torque_gain` (logged =
   (1 + size) applied), `torque_offset`, `time_delay` (logged torque late by size s), `joint_offset`
   (logged angle = true + size);
@@ -96,7 +97,8 @@ class Injected:
         joint: the joint it acts on (for `payload`: the joint whose body carries it).
         size: its size in SI units (for `torque_gain`: the departure from 1).
         extra: a shape parameter (cycles per revolution for `cogging`, Stribeck speed [rad/s], disturbance
-            frequency [Hz]).
+            frequency [Hz]; for `payload`, where nonzero, a point mass on the joint's axis this far [m] from its
+            anchor).
     """
 
     effect: str
@@ -321,6 +323,8 @@ def _hidden_model(plant: Plant, effects: list[Injected]) -> mujoco.MjModel:
             m.dof_armature[dof] += e.size
         elif e.effect == "joint_stiffness":
             m.jnt_stiffness[j] += e.size
+        elif e.effect == "payload" and e.extra:
+            _add_point_mass(m, int(m.jnt_bodyid[j]), e.size, m.jnt_pos[j] + e.extra * m.jnt_axis[j])
         elif e.effect == "payload":
             body = int(m.jnt_bodyid[j])
             ratio = (m.body_mass[body] + e.size) / m.body_mass[body]
@@ -331,6 +335,29 @@ def _hidden_model(plant: Plant, effects: list[Injected]) -> mujoco.MjModel:
         plant, m, {plant.joint_names.index(e.joint) for e in effects if e.effect == "coulomb_friction"}
     )
     return m
+
+
+def _add_point_mass(m: mujoco.MjModel, body: int, mass: float, point: np.ndarray) -> None:
+    """Add a point `mass` [kg] at `point` (3,) of `body`'s frame to `m` (in place): its centre of mass, principal
+    inertia and principal frame are those of the body and the point together (parallel-axis theorem)."""
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, m.body_iquat[body])
+    R, total = rot.reshape(3, 3), m.body_mass[body] + mass
+    com = m.body_ipos[body].copy()
+    new_com = (m.body_mass[body] * com + mass * point) / total
+
+    def shifted(r: np.ndarray) -> np.ndarray:  # a unit mass's inertia about the new centre of mass
+        return float(r @ r) * np.eye(3) - np.outer(r, r)
+
+    inertia = R @ np.diag(m.body_inertia[body]) @ R.T
+    inertia += m.body_mass[body] * shifted(com - new_com) + mass * shifted(point - new_com)
+    moments, axes = np.linalg.eigh(inertia)
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, axes.ravel())
+    m.body_mass[body], m.body_ipos[body] = total, new_com
+    m.body_inertia[body], m.body_iquat[body] = moments, quat
 
 
 def _keep_friction_ramps(plant: Plant, m: mujoco.MjModel, changed: set[int]) -> None:
