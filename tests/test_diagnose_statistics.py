@@ -291,3 +291,31 @@ def test_an_effect_chosen_on_a_joint_takes_that_joints_other_variants_out_of_the
     assert _taken(stribeck[1], chosen)  # another speed of the same effect on the same joint
     assert not _taken(other_joint[0], chosen) and not _taken(smooth[0], chosen)
     assert _taken(smooth[1], [Step(smooth[0], np.arange(1), -10.0, 1.0, 0.5)])  # one frictionloss per joint
+
+
+def test_a_coefficient_that_changes_over_each_record_is_found_and_a_constant_one_is_not() -> None:
+    """`changing_coefficient` on two 10 s records: a viscous friction constant in time is no change; one that grows
+    from 0.005 to 0.035 N m s/rad over each record is found on dq with its start and end; a quadratic drag on a motion
+    whose size grows fits a changing dq coefficient too, and the signature then says the motion's size changes."""
+    from identify.diagnose.residuals import changing_coefficient, describe_signature
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 10.0, 0.01)
+    time, record = np.concatenate([t, t + 20.0]), np.repeat([0, 1], len(t))
+    u = np.concatenate([t, t]) / t[-1]  # 0 to 1 over each record
+    dq = np.sin(2 * np.pi * 0.7 * time) + 0.5 * np.sin(2 * np.pi * 1.3 * time + 1.0)
+    probes = {"q": np.cos(time), "dq": dq, "sign_dq": np.sign(dq), "ddq": np.cos(3 * time)}
+    noise = 0.002 * rng.normal(size=len(time))
+    assert changing_coefficient(0.02 * dq + noise, probes, record, time) is None
+    change = changing_coefficient((0.005 + 0.03 * u) * dq + noise, probes, record, time)
+    assert change is not None and change["probe"] == "dq", change
+    assert change["start"] == pytest.approx(0.005, abs=5e-4) and change["end"] == pytest.approx(0.035, abs=5e-4)
+    assert 1 / 1.5 < change["motion_ratio"] < 1.5
+    # a quadratic drag on a motion whose size grows sixfold: a growing sign(dq) coefficient fits a sixth of it, but
+    # leaves most of what a constant one leaves: no drift is claimed
+    growing = (0.3 + 1.4 * u) * dq
+    drag = 0.05 * growing * np.abs(growing) + noise
+    assert changing_coefficient(drag, {**probes, "dq": growing, "sign_dq": np.sign(growing)}, record, time) is None
+    signature = {"correlation": {}, "position_periodic": {"share": 0.0}, "rms_over_noise": 5.0}
+    text = describe_signature({"elbow": {**signature, "changes_over_time": {**change, "motion_ratio": 2.0}}})
+    assert "from 0.00485 to 0.0351 N m s/rad (the joint's speed changes over the records too (x 2 from" in text, text

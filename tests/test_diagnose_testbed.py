@@ -161,6 +161,27 @@ def test_effect_outside_the_vocabulary_is_unexplained_structure_with_its_signatu
     assert sig["spectral_peaks"] and set(sig["correlation"]) == {"q", "dq", "sign_dq", "ddq"}
     assert {"cycles_per_revolution", "period_rad", "amplitude", "share"} <= set(sig["position_periodic"])
     assert dg.to_dict()["remaining"] == dg.remaining
+    # none of them changes over time: no coefficient is said to drift
+    assert all(r["changes_over_time"] is None for r in dg.remaining.values()), dg.verdict_reason
+
+
+def test_a_friction_or_a_torque_zero_that_drifts_over_each_record_is_named_as_a_change() -> None:
+    """Outside the library: a viscous friction that grows while the arm runs (a drive warming up: 0.05 N m s/rad
+    every 10 s, so 0.0014 to 0.0236 over the 4.44 s of the 5 s validation record the filters keep) and a torque zero
+    that creeps (0.15 N m over each record). No constant effect holds either: the viscous friction fitted on the
+    training record (0.025 on average) raises the validation record's error. What remains names the coefficient
+    that changes, and from what to what; before, only its correlation (+0.90 with dq)."""
+    _, dg = diagnose_case("two_link", [Injected("friction_drift", "elbow", 0.05)], seed=0)
+    assert dg.verdict == "unexplained_structure"
+    change = dg.remaining["elbow"]["changes_over_time"]
+    assert change["probe"] == "dq" and abs(change["start"]) < 0.004 and abs(change["end"] - 0.025) < 0.004, change
+    assert dg.remaining["shoulder"]["changes_over_time"] is None
+    assert "coefficient on dq (a viscous friction) that changes over each record" in dg.verdict_reason
+    _, dg = diagnose_case("two_link", [Injected("torque_drift", "elbow", 0.15)], seed=0)
+    change = dg.remaining["elbow"]["changes_over_time"]
+    # over the rows analysed: the filters' edges (0.28 s at each end of the 5 s record) are cut, 0.133 of the 0.15
+    assert change["probe"] == "zero" and 0.12 < change["end"] - change["start"] <= 0.15, change
+    assert "a torque zero that changes over each record, by +0.13" in dg.verdict_reason
 
 
 SENSOR_OUTSIDE = [

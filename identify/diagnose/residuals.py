@@ -14,6 +14,7 @@ from identify.diagnose.statistics import correlation_time
 
 __all__ = [
     "analyse_residual",
+    "changing_coefficient",
     "changing_offsets",
     "describe_signature",
     "noise_floor",
@@ -262,6 +263,7 @@ def residual_signature(
     Returns:
         Per joint: `rms` [N m] and `rms_over_noise`; `spectral_peaks` [{`hz`, `share`}] (the strongest
         Welch peaks and their share of the residual's power); `correlation` with q, dq, sign(dq), ddq;
+        `changes_over_time` (`changing_coefficient`: a coefficient that drifts over each record, or None);
         `position_periodic` {`cycles_per_revolution`, `period_rad`, `amplitude` [N m], `share`}
         (`candidates.position_harmonic`: the best a sin(n q) + b cos(n q) over the periods the motion spans, and
         the share of the residual variance it explains; 0 where it spans none); where `slow` (N, nv) marks the
@@ -287,6 +289,7 @@ def residual_signature(
             "rms_over_noise": rms / max(float(floor[j]), 1e-12),
             "spectral_peaks": [{"hz": float(f[i]), "share": float(pxx[i] / np.sum(pxx))} for i in idx],
             "correlation": {k: _corr(x, v) for k, v in probes.items()},
+            "changes_over_time": changing_coefficient(x, probes, s.record, s.time),
             "position_periodic": {
                 "cycles_per_revolution": best[0],
                 "period_rad": 2 * np.pi / best[0] if best[0] else float("nan"),
@@ -301,6 +304,85 @@ def residual_signature(
                 "share_of_residual": float(np.sum(x[slow[:, j]] ** 2) / total),
             }
     return out
+
+
+# a coefficient that changes over each record is reported where that change explains this share of a joint's
+# residual and this share of what the constant coefficient leaves of it, or more, at this t-value or more (its std
+# from the residual's own correlation time)
+_CHANGE_SHARE, _CHANGE_OF_LEFT, _CHANGE_T = 0.1, 0.5, 5.0
+# what each probe's coefficient is, and its unit, in the words of `describe_signature`
+_PROBE_WORDS = {
+    "zero": ("torque zero", "N m"),
+    "q": ("coefficient on q (a spring)", "N m/rad"),
+    "dq": ("coefficient on dq (a viscous friction)", "N m s/rad"),
+    "sign_dq": ("coefficient on sign(dq) (a dry friction)", "N m"),
+    "ddq": ("coefficient on ddq (an inertia)", "kg m^2"),
+}
+
+
+def changing_coefficient(
+    x: np.ndarray, probes: dict[str, np.ndarray], record: np.ndarray, time: np.ndarray
+) -> dict[str, Any] | None:
+    """The probe whose coefficient, changing linearly over each record, explains most of a residual: a parameter
+    that drifts while the robot runs (a friction as the drive warms up, a torque zero that creeps), which no
+    constant effect holds.
+
+    Per probe p (and the torque zero), x is fitted with each record's mean, p, and p times the time within its
+    record (u, -1/2 at its start to 1/2 at its end); the change's share is what the last column explains of x's
+    variance. The probe of largest share is returned where it is `_CHANGE_SHARE` or more, and `_CHANGE_OF_LEFT` of
+    what the fit without the last column leaves, at a t-value of `_CHANGE_T` or more (the std from the fit's
+    residual and its correlation time). A viscous friction that grows from 0 to 0.025 N m s/rad over a record
+    leaves a quarter of its torque's variance to the change.
+
+    Args:
+        x: (N,) residual [N m], centred; probes: name -> (N,) signal (`q`, `dq`, `sign_dq`, `ddq`).
+        record: (N,) record of each row; time: (N,) [s].
+
+    Returns:
+        {`probe` (`zero` for the torque zero), `start` and `end` (the coefficient at the records' start and end,
+        the zero's as a change from its mean), `share`, `t`, `motion_ratio` (the joint's RMS speed over the last
+        quarter of the records against the first: above 1.5 or below 1 / 1.5 the motion's size changes too, and an
+        effect not linear in the probe fits the same)}; None where no change is that clear.
+    """
+    records = np.unique(record)
+    u = np.zeros(len(x))
+    for r in records:
+        rows = record == r
+        span = float(np.ptp(time[rows]))
+        u[rows] = (time[rows] - time[rows].min()) / span - 0.5 if span > 0 else 0.0
+    means = (record[:, None] == records[None, :]).astype(float)
+    total = float(x @ x)
+    if total <= 0 or len(x) < 4 * (means.shape[1] + 3):
+        return None
+    best: dict[str, Any] | None = None
+    speed = probes["dq"]
+    for name, p in {"zero": np.ones(len(x)), **probes}.items():
+        base = means if name == "zero" else np.column_stack([means, p])
+        full = np.column_stack([base, p * u])
+        coef, *_ = np.linalg.lstsq(full, x, rcond=None)
+        left = x - full @ coef
+        rss0 = float(np.sum((x - base @ np.linalg.lstsq(base, x, rcond=None)[0]) ** 2))
+        rss1 = float(left @ left)
+        share = (rss0 - rss1) / total
+        gram_inv = np.linalg.pinv(full.T @ full)
+        var = rss1 / max(len(x) - full.shape[1], 1) * correlation_time(left)
+        t = abs(float(coef[-1])) / np.sqrt(max(var * float(gram_inv[-1, -1]), 1e-300))
+        if min(share - _CHANGE_SHARE, (rss0 - rss1) / max(rss0, 1e-300) - _CHANGE_OF_LEFT, t - _CHANGE_T) < 0:
+            continue
+        if best is not None and share <= best["share"]:
+            continue
+        level = 0.0 if name == "zero" else float(coef[-2])
+        early, late = speed[u < -0.25], speed[u > 0.25]
+        ratio = float(np.sqrt(np.mean(late**2) / max(np.mean(early**2), 1e-300)))
+        best = {
+            "probe": name,
+            "start": level - 0.5 * float(coef[-1]),
+            "end": level + 0.5 * float(coef[-1]),
+            "share": share,
+            "t": t,
+            "motion_ratio": ratio,
+        }
+    return best
 
 
 _PERIOD_EDGES = {"shortest": " or shorter: the shortest scanned", "longest": " or longer: the longest the motion spans"}
@@ -325,6 +407,24 @@ def describe_signature(remaining: dict[str, Any]) -> str:
             # 42-cycle ripple read as 40.5; on a UR5e wrist moving 0.6 rad a sin(3 q) read as 0.546 rad)
             edge = _PERIOD_EDGES.get(periodic.get("edge") or "", "")
             notes.append(f"{periodic['share']:.0%} of it periodic in position ({periodic['period_rad']:.3g} rad{edge})")
+        change = sig.get("changes_over_time")
+        if change:
+            what, unit = _PROBE_WORDS[change["probe"]]
+            size = (
+                f"the joint's speed changes over the records too (x {change['motion_ratio']:.2g} from the first "
+                "quarter to the last): an effect not linear in the motion fits the same, or"
+            )
+            grows = f" ({size} " if not 1 / 1.5 <= change["motion_ratio"] <= 1.5 else " ("
+            how = (
+                f"by {change['end'] - change['start']:+.3g} {unit}"
+                if change["probe"] == "zero"
+                else f"from {change['start']:.3g} to {change['end']:.3g} {unit}"
+            )
+            notes.insert(
+                0,
+                f"{change['share']:.0%} of it a {what} that changes over each record, {how}{grows}a parameter that "
+                "drifts while the robot runs: a friction as the drive warms up, a torque zero that creeps)",
+            )
         finite = {k: v for k, v in sig["correlation"].items() if np.isfinite(v)}
         if not notes and finite:
             probe = max(finite, key=lambda k: abs(finite[k]))

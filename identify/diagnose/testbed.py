@@ -16,8 +16,9 @@ Effects (`Injected.effect`):
   (1 + size) applied), `torque_offset`, `time_delay` (logged torque late by size s), `joint_offset`
   (logged angle = true + size);
 - outside it: `quadratic_drag` (size dq |dq|), `torque_disturbance` (size sin(2 pi extra t), a torque
-  that follows time, not the motion), and two of the torque sensor: `torque_dead_zone` (logged = sign(tau)
-  max(|tau| - size, 0)) and `torque_drift` (a zero that drifts from 0 to size over the record).
+  that follows time, not the motion), `friction_drift` (a viscous friction that grows from 0 at the record's
+  start by size every `FRICTION_DRIFT_S`: a drive warming up), and two of the torque sensor: `torque_dead_zone`
+  (logged = sign(tau) max(|tau| - size, 0)) and `torque_drift` (a zero that drifts from 0 to size over the record).
 
 A second generator owes nothing to MuJoCo (`lab_rollout`): the DFKI lab's own analytic model of the double
 pendulum (`identify.diagnose.authors`, with any of their identified parameter sets, or the nominal MJCF's
@@ -85,7 +86,8 @@ IN_VOCABULARY = (
     "torque_offset",
     "viscous_friction",
 )
-OUT_OF_VOCABULARY = ("quadratic_drag", "torque_disturbance", "torque_dead_zone", "torque_drift")
+OUT_OF_VOCABULARY = ("quadratic_drag", "torque_disturbance", "friction_drift", "torque_dead_zone", "torque_drift")
+FRICTION_DRIFT_S = 10.0  # [s] `friction_drift`: its viscous friction grows by its size over this time
 
 
 @dataclass(frozen=True)
@@ -390,6 +392,8 @@ def _applied_forces(
             out[j] -= e.size * dq[j] * abs(dq[j])
         elif e.effect == "torque_disturbance":
             out[j] -= e.size * np.sin(2 * np.pi * e.extra * t)
+        elif e.effect == "friction_drift":
+            out[j] -= e.size * t / FRICTION_DRIFT_S * dq[j]
     return out
 
 
@@ -623,6 +627,7 @@ def hidden_effect_cases() -> list[tuple[str, list[Injected], str]]:
         ("two_link", [Injected("stribeck_friction", "elbow", 0.08, 0.1)], "named"),
         ("two_link", [Injected("quadratic_drag", "shoulder", 0.03)], "unexplained"),
         ("two_link", [Injected("torque_disturbance", "elbow", 0.1, 0.37)], "unexplained"),
+        ("two_link", [Injected("friction_drift", "elbow", 0.05)], "unexplained"),
         ("pendulum", [Injected("viscous_friction", "swing", 0.01)], "named"),
         ("pendulum", [Injected("coulomb_friction", "swing", 0.03)], "named"),
         ("pendulum", [Injected("torque_disturbance", "swing", 0.05, 0.37)], "unexplained"),
