@@ -165,6 +165,18 @@ def test_effect_outside_the_vocabulary_is_unexplained_structure_with_its_signatu
     assert all(r["changes_over_time"] is None for r in dg.remaining.values()), dg.verdict_reason
 
 
+def test_a_torque_scale_beyond_the_gain_band_is_said_to_be_a_scale_error() -> None:
+    """An elbow torque logged at 0.6 of the applied one (a torque constant or unit off by more than the gain band):
+    the gain ends at its bound, 0.7, the verdict keeps the structure, and a note says the data ask for more than a
+    gain can be and where to look; before, only the value's `at its lower bound`."""
+    _, dg = diagnose_case("two_link", [Injected("torque_gain", "elbow", -0.4)], seed=0)
+    assert dg.verdict == "unexplained_structure"
+    gain = next(f for f in dg.findings if (f.effect, f.target) == ("torque_gain", "elbow"))
+    assert gain.at_bound == "lower" and gain.value == pytest.approx(0.7)
+    note = next(n for n in dg.notes if n.startswith(gain.name))
+    assert "at its lower bound (0.7)" in note and "check the scale of the torque column" in note, note
+
+
 def test_a_friction_or_a_torque_zero_that_drifts_over_each_record_is_named_as_a_change() -> None:
     """Outside the library: a viscous friction that grows while the arm runs (a drive warming up: 0.05 N m s/rad
     every 10 s, so 0.0014 to 0.0236 over the 4.44 s of the 5 s validation record the filters keep) and a torque zero

@@ -992,6 +992,7 @@ def diagnose(
             f"{f.at_bound} bound, its value of no effect ({f.value:g} {f.unit}): not named"
             for f in pinned
         ]
+        + _at_bound_notes(findings)
         + [
             f"{s.candidate.effect}: {', '.join(s.held_nominal)} not refitted (nominal): on these records they act "
             "much as torque offsets, and refitting them did not lower the error on the records held out in turn"
@@ -2117,6 +2118,31 @@ def _steps_reading(plant: Plant, records: list[_Record], asked: bool | None) -> 
             read and abs(lag - h) <= STEP_LAG_BAND * h + STEP_MIN_Z * lag_std and lag >= STEP_MIN_Z * lag_std
         ),
     }
+
+
+# what a value at the end of its physical range says, by effect (`_at_bound_notes`)
+_BEYOND_RANGE = {
+    "torque_gain": "a torque scale this far from 1 is a torque constant, gear ratio or unit that is wrong: check the "
+    "scale of the torque column",
+    "time_delay": "a delay this long is a clock or time column that differs between the angles and the torques, or a "
+    "model error the library does not name",
+    "joint_offset": "an angle zero this far off is a calibration or angle-column mistake: check the angle columns",
+}
+
+
+def _at_bound_notes(findings: list[Finding]) -> list[str]:
+    """A note per finding whose headline value ended on a bound of its physical range (not its value of no
+    effect: those are dropped, `_pinned_at_null`): the data ask for a value beyond what the effect can be, so the
+    finding may stand for another cause (a torque gain of 0.6 ended at 0.7, with a joint elasticity at its own
+    bound beside it)."""
+    return [
+        f"{f.name}: at its {f.at_bound} bound ({f.value:.4g}{'' if f.unit == '1' else ' ' + f.unit}), the end of the "
+        "range the effect can "
+        "physically have; the data ask for a value beyond it, so it may stand for another cause: "
+        + _BEYOND_RANGE.get(f.effect, "what it leaves is in `remaining`")
+        for f in findings
+        if f.at_bound is not None
+    ]
 
 
 def _pinned_at_null(findings: list[Finding], nulls: list[float]) -> list[Finding]:
