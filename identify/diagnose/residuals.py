@@ -366,7 +366,7 @@ def changing_coefficient(
         share = (rss0 - rss1) / total
         gram_inv = np.linalg.pinv(full.T @ full)
         var = rss1 / max(len(x) - full.shape[1], 1) * correlation_time(left)
-        t = abs(float(coef[-1])) / np.sqrt(max(var * float(gram_inv[-1, -1]), 1e-300))
+        t = abs(float(coef[-1])) / float(np.sqrt(max(var * float(gram_inv[-1, -1]), 1e-300)))
         if min(share - _CHANGE_SHARE, (rss0 - rss1) / max(rss0, 1e-300) - _CHANGE_OF_LEFT, t - _CHANGE_T) < 0:
             continue
         if best is not None and share <= best["share"]:
