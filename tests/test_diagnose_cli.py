@@ -514,7 +514,7 @@ def test_the_diagnosis_reads_a_friction_as_the_logs_simulator_applied_it(tmp_pat
     cfg = compose_config([f"system.mjcf={xarm}"], config_name="diagnose")
     assert cfg.system.hard_friction is False
     run_dir = tmp_path / "run"
-    command = [sys.executable, "-m", "harness.run", f"system.mjcf={xarm}", "system.periods=2", "excitation=random"]
+    command = [sys.executable, "-m", "harness.run", f"system.mjcf={xarm}", "system.periods=1", "excitation=random"]
     proc = subprocess.run(
         [*command, f"hydra.run.dir={run_dir}"],
         cwd=Path(__file__).resolve().parents[1],
