@@ -244,9 +244,8 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
             record_offsets=record_offsets(cfg),  # as sysid-diagnose resolves them (the data config's, here)
             record_joint_offsets=record_joint_offsets(cfg),
         )
-        if cfg.data.get("tau_lead_s") is None:  # as sysid-diagnose: none declared, found from the data
-            return with_found_lead(fit, train, validation, np.random.default_rng(0))
-        return fit(train, validation, rng=np.random.default_rng(0))
+        known = cfg.data.get("tau_lead_s") is not None  # as sysid-diagnose: else found from the data
+        return with_found_lead(fit, train, validation, np.random.default_rng(0), known=known)
 
     def judged_on(dg: Any, held: Dataset) -> list[float]:
         with tempfile.TemporaryDirectory() as tmp:

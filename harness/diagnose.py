@@ -318,13 +318,11 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         hard_friction=_hard_friction(cfg),
         mujoco_steps=opts.get("mujoco_steps"),
     )
-    lead_unknown = cfg.data.get("tau_lead_s") is None  # not declared: found from the data
+    known = cfg.data.get("tau_lead_s") is not None  # declared; else found from the data
 
     def run_diagnosis(train: Sequence[Dataset], **kwargs: Any) -> Diagnosis:  # each fit from the same seed
-        run, rng = partial(fit, **kwargs), np.random.default_rng(int(cfg.seed))
-        if lead_unknown:
-            return with_found_lead(run, train, split.validation, rng)
-        return run(train, split.validation, rng=rng)
+        rng = np.random.default_rng(int(cfg.seed))
+        return with_found_lead(partial(fit, **kwargs), train, split.validation, rng, known=known)
 
     result = run_diagnosis(split.train, references=references)
     mjcf_name, final_name = _mjcf_names(plant.name)

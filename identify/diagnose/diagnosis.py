@@ -1235,9 +1235,9 @@ def _with_confounding(
     gram = M.T @ M  # every share below is read from it: no further pass over the rows
     out = []
     for i, (f, st) in enumerate(zip(findings, steps, strict=True)):
+        cols = list(range(int(start[i]), int(start[i + 1])))
         others = [k for k in range(X.shape[2]) if not start[i] <= k < start[i + 1]]
         if st.candidate.effect == "rigid_body":
-            cols = list(range(int(start[i]), int(start[i + 1])))
             out.append(
                 _confounded(
                     f, st.candidate, _torque_alternatives(cols, others, alternatives, offsets, gram, fit, selection)
@@ -1280,7 +1280,6 @@ def _with_confounding(
                     {"effect": c.effect, "target": c.target, "independence": absorbed, "value": value, "std": std}
                 )
         if st.candidate.effect == "payload":  # what a body's change does is its torque, not its mass column
-            cols = list(range(int(start[i]), int(start[i + 1])))
             named = {(a["effect"], a["target"]) for a in alts}
             alts += [
                 a
@@ -1813,23 +1812,30 @@ def _found_lead(lead: tuple[float, float], dt: float) -> bool:
 
 
 def with_found_lead(
-    run: Callable[..., Diagnosis], train: Sequence[Dataset], validation: Sequence[Dataset], rng: np.random.Generator
+    run: Callable[..., Diagnosis],
+    train: Sequence[Dataset],
+    validation: Sequence[Dataset],
+    rng: np.random.Generator,
+    *,
+    known: bool = False,
 ) -> Diagnosis:
-    """`run(train, validation, rng=rng)` (a `diagnose` with its options bound) for records whose torque lead
-    (`Dataset.tau_lead_s`) is not known: where the measured torque leads the motion clearly (`_found_lead`) by less
-    than a sample in all (the declared `tau_lead_s` with it), the same run again on the records read with that
-    lead, from the same random state (`info["torque_lead_found"]`, and a note). A lead is no effect of the plant (a
-    sensor reports after the torque acts, `time_delay` >= 0) but the log's timing: a torque held over each sample
-    and logged at its start, as MuJoCo's RK4 or a controller's zero-order hold applies it. A lead of a sample or
-    more is left to the note (`_lead_note`): no timing of a held torque makes it. States a record gives (`given`,
-    `simulator`) cannot be moved to the torque's instant: read as they are."""
+    """`run(train, validation, rng=rng)` (a `diagnose` with its options bound), once where the records' torque lead
+    is `known` (declared: `data.tau_lead_s` set). Where it is not (`Dataset.tau_lead_s` then holds 0) and the
+    measured torque leads the motion clearly (`_found_lead`) by less than a sample in all (the declared `tau_lead_s`
+    with it), the same run again on the records read with that lead, from the same random state
+    (`info["torque_lead_found"]`, and a note). A lead is no effect of the plant (a sensor reports after the torque
+    acts, `time_delay` >= 0) but the log's timing: a torque held over each sample and logged at its start, as
+    MuJoCo's RK4 or a controller's zero-order hold applies it. A lead of a sample or more is left to the note
+    (`_lead_note`): no timing of a held torque makes it. States a record gives (`given`, `simulator`) cannot be
+    moved to the torque's instant: read as they are."""
+    if known:
+        return run(train, validation, rng=rng)
     again = copy.deepcopy(rng)
     first = run(train, validation, rng=rng)
     found = first.info["torque_lead"]
-    dt = float(min(d.dt for d in [*train, *validation]))
     if found is None or first.info["derivatives"]["method"] in ("simulator", "given"):
         return first
-    lead = (float(found["delay_s"]), float(found["std_s"]))
+    lead, dt = (float(found["delay_s"]), float(found["std_s"])), float(min(d.dt for d in [*train, *validation]))
     declared = float(train[0].tau_lead_s)
     if not _found_lead(lead, dt):
         return first
@@ -2137,9 +2143,8 @@ def _at_bound_notes(findings: list[Finding]) -> list[str]:
     bound beside it)."""
     return [
         f"{f.name}: at its {f.at_bound} bound ({f.value:.4g}{'' if f.unit == '1' else ' ' + f.unit}), the end of the "
-        "range the effect can "
-        "physically have; the data ask for a value beyond it, so it may stand for another cause: "
-        + _BEYOND_RANGE.get(f.effect, "what it leaves is in `remaining`")
+        "range the effect can physically have; the data ask for a value beyond it, so it may stand for another cause"
+        + (f": {_BEYOND_RANGE[f.effect]}" if f.effect in _BEYOND_RANGE else ", one the library may not name")
         for f in findings
         if f.at_bound is not None
     ]

@@ -410,11 +410,12 @@ def describe_signature(remaining: dict[str, Any]) -> str:
         change = sig.get("changes_over_time")
         if change:
             what, unit = _PROBE_WORDS[change["probe"]]
-            size = (
-                f"the joint's speed changes over the records too (x {change['motion_ratio']:.2g} from the first "
-                "quarter to the last): an effect not linear in the motion fits the same, or"
+            grows = (
+                f" (the joint's speed changes over the records too (x {change['motion_ratio']:.2g} from the first "
+                "quarter to the last): an effect not linear in the motion fits the same, or "
+                if not 1 / 1.5 <= change["motion_ratio"] <= 1.5
+                else " ("
             )
-            grows = f" ({size} " if not 1 / 1.5 <= change["motion_ratio"] <= 1.5 else " ("
             how = (
                 f"by {change['end'] - change['start']:+.3g} {unit}"
                 if change["probe"] == "zero"
