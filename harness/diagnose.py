@@ -311,6 +311,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         anomalies=anomalies,
         selection=SelectionOptions(**OmegaConf.to_container(opts.selection, resolve=True)),  # type: ignore[arg-type]
         window_s=float(opts.window_s),
+        max_windows=None if opts.get("max_windows") is None else int(opts.max_windows),
         band_hz=_band_hz(cfg),
         record_offsets=record_offsets(cfg),
         record_joint_offsets=record_joint_offsets(cfg),

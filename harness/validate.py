@@ -329,6 +329,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     _number(cfg, "data.tau_lead_s", low=0.0, optional=True)
     _number(cfg, "diagnose.window_s", low=0.0, low_open=True)
     _number(cfg, "diagnose.max_rows", integer=True, low=1000, optional=True)
+    _number(cfg, "diagnose.max_windows", integer=True, low=1, optional=True)
     if _value(cfg, "diagnose.derivatives") == "given":  # a choice of derive_states, not of a CSV log
         raise ConfigError(
             "diagnose.derivatives=given reads the states' rates from the data, and a log in the measured-data format "

@@ -937,6 +937,8 @@ def test_a_whole_diagnosis_of_a_3m_row_file_stays_within_twice_the_file(tmp_path
     assert m["peak_mb"] <= 2 * size_mb, (m, size_mb)
     payload = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert payload["reduced"][str(path)]["factor"] > 1
+    windows = payload["info"]["simulation_windows"]  # the simulation error on windows spread over the file
+    assert windows["simulated"] <= 2000 < windows["of"], windows
     assert "every" in err and "states at the full rate" in err  # progress names the thinning
 
 

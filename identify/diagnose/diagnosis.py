@@ -63,7 +63,13 @@ from identify.diagnose.residuals import (
     whiteness,
 )
 from identify.diagnose.select import SelectionOptions, Step, _flat, _span_free, fit_columns, select_effects
-from identify.diagnose.simulation_error import mujoco_stepper, ode_stepper, simulation_error
+from identify.diagnose.simulation_error import (
+    SimulationError,
+    Stepper,
+    mujoco_stepper,
+    ode_stepper,
+    simulation_error,
+)
 from identify.diagnose.state_noise import check_state_noise, state_noise_share, state_noise_torque
 from identify.diagnose.statistics import LinearFit, correlation_time
 from identify.estimators.least_squares import safe_sigma
@@ -594,32 +600,43 @@ def _weights(plant: Plant, floor: np.ndarray) -> np.ndarray:
     return 1.0 / sigma**2
 
 
-def _sim_error_mjcf(
-    model_plant: Plant, records: list[_Record], tau_in: Callable[[_Record], np.ndarray], window_s: float
-) -> np.ndarray:
-    stepper = mujoco_stepper(model_plant.mj_model)
-    sq, n = np.zeros(model_plant.nv), 0
-    for rec in records:
+@dataclass(frozen=True)
+class _Simulated:
+    """One model's re-started simulation of the validation records: `rms` (nv,) pooled over every record [rad],
+    `runs` each record's `SimulationError` (its time series are the recording's)."""
+
+    rms: np.ndarray
+    runs: list[SimulationError]
+
+
+def _simulate(
+    stepper: tuple[Stepper, float],
+    records: list[_Record],
+    tau_in: Callable[[_Record], np.ndarray],
+    window_s: float,
+    max_windows: int | None,
+) -> _Simulated:
+    """The simulation error of one model on every record; `max_windows` shared among the records by duration
+    (one at least each), so that a long log's error is estimated on windows spread over all of it."""
+    spans = np.array([float(r.data.time[-1] - r.data.time[0]) for r in records])
+    runs = []
+    for rec, span in zip(records, spans, strict=True):
         rows = _rows(rec)
-        err = simulation_error(
-            stepper, rec.data.time[rows], rec.states.q[rows], rec.states.dq[rows], tau_in(rec)[rows], window_s=window_s
+        cap = None if max_windows is None else max(1, int(max_windows * span / max(spans.sum(), 1e-12)))
+        runs.append(
+            simulation_error(
+                stepper,
+                rec.data.time[rows],
+                rec.states.q[rows],
+                rec.states.dq[rows],
+                tau_in(rec)[rows],
+                window_s=window_s,
+                max_windows=cap,
+            )
         )
-        sq += err.rms**2 * len(err.time)
-        n += len(err.time)
-    return np.sqrt(sq / max(n, 1))
-
-
-def _sim_series(model_plant: Plant, rec: _Record, tau: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
-    rows = _rows(rec)
-    err = simulation_error(
-        mujoco_stepper(model_plant.mj_model),
-        rec.data.time[rows],
-        rec.states.q[rows],
-        rec.states.dq[rows],
-        tau[rows],
-        window_s=window_s,
-    )
-    return err.time, err.q_simulated
+    n = sum(len(r.time) for r in runs)
+    sq = sum(r.rms**2 * len(r.time) for r in runs)
+    return _Simulated(rms=np.sqrt(sq / max(n, 1)), runs=runs)
 
 
 def _rms(pred: np.ndarray, meas: np.ndarray) -> np.ndarray:
@@ -637,6 +654,7 @@ def diagnose(
     derivative_options: dict[str, Any] | None = None,
     selection: SelectionOptions | None = None,
     window_s: float = 0.25,
+    max_windows: int | None = 2000,
     references: dict[str, ReferenceModel] | None = None,
     band_hz: float | None = None,
     record_offsets: bool = False,
@@ -657,6 +675,8 @@ def diagnose(
         derivatives, derivative_options: how q is filtered and differentiated (`identify.derivatives`).
         selection: thresholds of the selection.
         window_s: re-start window of the simulation error [s].
+        max_windows: the simulation error's windows at most (all validation records together, shared by
+            duration): a longer log simulates every k-th window (`simulation_error`); None: every window.
         references: other models to evaluate on the validation records (e.g. the authors' identified ones).
         band_hz: parallel low-pass of measured and model torques before they are compared (see `Signals`);
             never above the derivative filter's cut-off, which is the band where it is None (`analysis_band`).
@@ -870,17 +890,21 @@ def diagnose(
         def advanced(rec: _Record) -> np.ndarray:
             return applied_from_measured(ext, rec.data.time, rec.data.tau)
 
+        def simulate(model: Plant, tau_in: Callable[[_Record], np.ndarray]) -> _Simulated:
+            return _simulate(mujoco_stepper(model.mj_model), va, tau_in, window_s, max_windows)
+
         preds["nominal"] = s_va.tau_nominal
-        sim_nom = _sim_error_mjcf(plant, va, measured, window_s)
         preds["rigid_body_refit"] = predict_measured_torque(refit, refit_ext, s_va.time, s_va.q, s_va.dq, s_va.ddq)
-        sim_refit = _sim_error_mjcf(refit, va, measured, window_s)
         preds["calibrated"] = preds_cal
-        sim_cal = _sim_error_mjcf(calibrated, va, advanced, window_s)
-        sims = {"nominal": sim_nom, "rigid_body_refit": sim_refit, "calibrated": sim_cal}
+        sims = {
+            "nominal": simulate(plant, measured),
+            "rigid_body_refit": simulate(refit, measured),
+            "calibrated": simulate(calibrated, advanced),
+        }
         for name, ref in (references or {}).items():
             preds[name] = ref.torque(s_va.q, s_va.dq, s_va.ddq)
             if ref.accel is not None:
-                sims[name] = _sim_error_ode(ref, va, window_s)
+                sims[name] = _simulate(ode_stepper(ref.accel), va, measured, window_s, max_windows)
         some_left_out = s_va.used is not None and not bool(np.all(s_va.used))
         for name, pred in preds.items():
             error = s_va.smooth(s_va.tau) - s_va.smooth(pred)
@@ -890,9 +914,9 @@ def diagnose(
                 judged = np.where(np.any(s_va.used, axis=0), judged, np.nan)  # none judged (null in the JSON)
                 models[name]["torque_rms_judged"] = _per_joint(names, judged)
             if name in sims:
-                models[name]["simulation_error"] = _per_joint(names, sims[name])
+                models[name]["simulation_error"] = _per_joint(names, sims[name].rms)
         friction = frictionloss_mapping(calibrated, s_va.q, s_va.dq, s_va.ddq)
-        series = _validation_series(plant, calibrated, ext, va, s_va, preds, window_s)
+        series = _validation_series(plant, va, s_va, preds, sims["nominal"], sims["calibrated"])
 
     fs = 1.0 / va[0].data.dt
     # an unactuated joint has no torque sensor: its residual (the torque the model needs there, which must be
@@ -943,6 +967,10 @@ def diagnose(
             "selection": selection.__dict__,
             "derivatives": {"method": derivatives, **options},
             "window_s": window_s,
+            "simulation_windows": {
+                "simulated": sum(r.windows for r in sims["calibrated"].runs),
+                "of": sum(r.of for r in sims["calibrated"].runs),
+            },
             "band_hz": band_hz,
             "record_offsets": [
                 {"source": r.data.source, **_per_joint(names, o)} for r, o in zip(tr, offsets_by_record, strict=False)
@@ -1409,21 +1437,6 @@ def _predict_records(calibrated: Plant, ext: Extension, records: list[_Record]) 
             for r in records
         ]
     )
-
-
-def _sim_error_ode(ref: ReferenceModel, records: list[_Record], window_s: float) -> np.ndarray:
-    assert ref.accel is not None
-    stepper = ode_stepper(ref.accel)
-    nv = records[0].data.q.shape[1]
-    sq, n = np.zeros(nv), 0
-    for rec in records:
-        rows = _rows(rec)
-        err = simulation_error(
-            stepper, rec.data.time[rows], rec.states.q[rows], rec.states.dq[rows], rec.data.tau[rows], window_s=window_s
-        )
-        sq += err.rms**2 * len(err.time)
-        n += len(err.time)
-    return np.sqrt(sq / max(n, 1))
 
 
 def _record_angles(
@@ -2236,12 +2249,11 @@ def _findings(
 
 def _validation_series(
     plant: Plant,
-    calibrated: Plant,
-    ext: Extension,
     records: list[_Record],
     stacked: Signals,
     preds: dict[str, np.ndarray],
-    window_s: float,
+    nominal_sim: _Simulated,
+    calibrated_sim: _Simulated,
 ) -> dict[str, Any]:
     """Time series of every validation record for the recording, exactly as the table compares them.
 
@@ -2262,8 +2274,6 @@ def _validation_series(
     for i, rec in enumerate(records):
         rows = _rows(rec)
         mine = stacked.record == i
-        t_sim, q_nom = _sim_series(plant, rec, rec.data.tau, window_s)
-        _, q_cal = _sim_series(calibrated, rec, applied_from_measured(ext, rec.data.time, rec.data.tau), window_s)
         out.append(
             {
                 "source": rec.data.source,
@@ -2273,9 +2283,9 @@ def _validation_series(
                 "tau_calibrated": model[mine],
                 "q_time": rec.data.time[rows],
                 "q_measured": rec.states.q[rows],
-                "sim_time": t_sim,
-                "q_nominal": q_nom,
-                "q_calibrated": q_cal,
+                "sim_time": nominal_sim.runs[i].time,
+                "q_nominal": nominal_sim.runs[i].q_simulated,
+                "q_calibrated": calibrated_sim.runs[i].q_simulated,
             }
         )
     return {"joint_names": plant.joint_names, "band_hz": stacked.band_hz, "records": out}

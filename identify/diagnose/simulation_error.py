@@ -18,7 +18,7 @@ from mujoco import rollout
 
 from dynamics.actuators import actuation_of, as_motors
 
-__all__ = ["SimulationError", "mujoco_stepper", "ode_stepper", "simulation_error"]
+__all__ = ["SimulationError", "Stepper", "mujoco_stepper", "ode_stepper", "simulation_error"]
 
 # (q0 (B, nv), dq0 (B, nv), tau (B, n_step, nv), dt) -> q (B, n_step, nv) after each step
 Stepper = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
@@ -33,12 +33,16 @@ class SimulationError:
         time: (M,) sample times compared [s].
         q_simulated: (M, nv) simulated angles at those times [rad] (restarting every window).
         window_s: window length [s].
+        windows: windows simulated.
+        of: windows the record holds (`windows` < `of` where `max_windows` thinned them).
     """
 
     rms: np.ndarray
     time: np.ndarray
     q_simulated: np.ndarray
     window_s: float
+    windows: int
+    of: int
 
 
 _BATCH = 1000  # windows simulated in one batch
@@ -100,6 +104,7 @@ def simulation_error(
     tau_applied: np.ndarray,
     *,
     window_s: float = 0.25,
+    max_windows: int | None = None,
 ) -> SimulationError:
     """Re-start every `window_s` from (q, dq) and drive by `tau_applied`; compare with q.
 
@@ -110,10 +115,14 @@ def simulation_error(
             reference the simulation is compared with.
         tau_applied: (N, nv) joint torque applied over [t_k, t_k+1) [N m].
         window_s: window length [s].
+        max_windows: simulate at most this many windows, every k-th one (k the least that keeps to it), spread over
+            the whole record: a long record's error is estimated at a bounded cost. None: every window.
     """
     step, dt = stepper
     if window_s <= 0:
         raise ValueError(f"window_s must be > 0, got {window_s}")
+    if max_windows is not None and max_windows < 1:
+        raise ValueError(f"max_windows must be >= 1 or None, got {max_windows}")
     n_step = max(int(round(window_s / dt)), 1)
     starts = []
     k = 0
@@ -124,9 +133,11 @@ def simulation_error(
         raise ValueError(
             f"the record ({time[-1] - time[0]:.3f} s) is shorter than one window (window_s = {window_s} s)"
         )
+    every = 1 if max_windows is None else -(-len(starts) // max_windows)
+    simulated = starts[::every]
     times, sims, refs = [], [], []
-    for first in range(0, len(starts), _BATCH):  # a batch of windows at a time: memory stays that of a batch
-        idx = np.array(starts[first : first + _BATCH])
+    for first in range(0, len(simulated), _BATCH):  # a batch of windows at a time: memory stays that of a batch
+        idx = np.array(simulated[first : first + _BATCH])
         t_phys = time[idx][:, None] + dt * np.arange(n_step)[None, :]
         sample = np.clip(np.searchsorted(time, t_phys + 1e-12, side="right") - 1, 0, len(time) - 1)
         q_sim = step(q[idx], dq[idx], tau_applied[sample], dt)  # (B, n_step, nv): after steps 1..n_step
@@ -140,4 +151,6 @@ def simulation_error(
             refs.append(q[ks])
     t_all, s_all, r_all = np.concatenate(times), np.concatenate(sims), np.concatenate(refs)
     rms = np.sqrt(np.mean((s_all - r_all) ** 2, axis=0))
-    return SimulationError(rms=rms, time=t_all, q_simulated=s_all, window_s=float(window_s))
+    return SimulationError(
+        rms=rms, time=t_all, q_simulated=s_all, window_s=float(window_s), windows=len(simulated), of=len(starts)
+    )
