@@ -1,23 +1,19 @@
 """`consistent_parameters`: a fit of base parameters that leaves a body with no physical realisation is
-projected onto consistent inertials, and the projection survives a LAPACK SVD that does not converge."""
+projected onto consistent inertials, to the optimum of its convex problem."""
 
 from __future__ import annotations
 
-import importlib
-
 import numpy as np
-import pytest
 
-from dynamics.inertia import mass_com_inertia
+from dynamics.inertia import is_consistent, mass_com_inertia, pseudo_inertia
 from dynamics.plant import load_plant
-from identify.diagnose.calibrate import consistent_parameters
+from identify.diagnose.calibrate import CONSISTENT_MARGIN, consistent_parameters
 
-calibrate = importlib.import_module("identify.diagnose.calibrate")
+_PSEUDO = np.stack([pseudo_inertia(e).ravel() for e in np.eye(10)], axis=1)  # theta_b -> vec J_b
 
 
 def _realisable(body: np.ndarray) -> bool:
-    """Positive mass and an inertia about the centre of mass that is positive semi-definite (the projection may
-    land on the boundary: the metric here sees every direction alike)."""
+    """Positive mass and an inertia about the centre of mass that is positive semi-definite."""
     return bool(body[0] > 0 and np.linalg.eigvalsh(mass_com_inertia(body)[2]).min() > -1e-12)
 
 
@@ -37,20 +33,32 @@ def test_an_inconsistent_body_is_projected_to_a_consistent_one() -> None:
     assert notes and "nearest consistent" in notes[0]
 
 
-def test_the_projection_survives_an_svd_that_does_not_converge(monkeypatch: pytest.MonkeyPatch) -> None:
-    """SciPy's trust-region solver takes the SVD of the Jacobian; on a UR5e refit (entries 1e-22 .. 8e5) LAPACK's
-    gesdd did not converge and the diagnosis stopped. The solve is retried with LSMR, which needs no SVD."""
-    real = calibrate.optimize.least_squares
-    calls: list[str] = []
+def test_the_projection_reaches_the_optimum_a_frobenius_metric_makes_known() -> None:
+    """With the metric || J(theta') - J(theta) ||_F the nearest consistent body is J's eigenvalues clipped at the
+    margin; the log-Cholesky least squares before stopped short of it (its coordinates run off to infinity at
+    the boundary where the optimum lies)."""
+    plant = load_plant("two_link")
+    theta, _ = _inconsistent()
+    metric = np.kron(np.eye(2), _PSEUDO)  # (32, 20): each body's pseudo-inertia, entry by entry
+    fixed = consistent_parameters(plant, theta, metric, [])
+    J = pseudo_inertia(theta[10:20])
+    eps = CONSISTENT_MARGIN * max(np.linalg.norm(J, 2), np.linalg.norm(pseudo_inertia(plant.theta[10:20]), 2))
+    w, V = np.linalg.eigh(J)
+    assert w[0] < 0  # the body is inconsistent: the clip moves it
+    want = (V * np.maximum(w, eps)) @ V.T
+    np.testing.assert_allclose(pseudo_inertia(fixed[10:20]), want, atol=1e-6 * np.abs(w).max())
+    np.testing.assert_allclose(fixed[:10], theta[:10], atol=1e-7)  # the consistent body stays
+    assert is_consistent(fixed[10:20])
 
-    def failing(*args, **kwargs):  # type: ignore[no-untyped-def]
-        calls.append(kwargs.get("tr_solver", "exact"))
-        if kwargs.get("tr_solver") != "lsmr":
-            raise np.linalg.LinAlgError("SVD did not converge")
-        return real(*args, **kwargs)
 
-    monkeypatch.setattr(calibrate.optimize, "least_squares", failing)
+def test_a_nominal_body_at_the_boundary_still_gives_a_consistent_one() -> None:
+    """The barrier method starts inside the consistent set: a nominal body without extent (a point mass, its
+    pseudo-inertia of rank one) is lifted first."""
+    plant = load_plant("two_link")
+    nominal = plant.theta.copy()
+    m, c = 0.5, np.array([0.0, 0.0, -0.2])
+    nominal[10:20] = [m, *(m * c), m * (c[1] ** 2 + c[2] ** 2), 0.0, m * (c[0] ** 2 + c[2] ** 2), 0.0, 0.0, 0.0]
+    assert np.linalg.eigvalsh(pseudo_inertia(nominal[10:20]))[0] < 1e-12
     theta, metric = _inconsistent()
-    fixed = consistent_parameters(load_plant("two_link"), theta, metric, [])
-    assert calls == ["exact", "lsmr"]
-    assert all(_realisable(fixed[10 * b : 10 * b + 10]) for b in range(2))
+    fixed = consistent_parameters(plant, theta, metric, [], nominal=nominal)
+    assert np.all(np.isfinite(fixed)) and all(_realisable(fixed[10 * b : 10 * b + 10]) for b in range(2))
