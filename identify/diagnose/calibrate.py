@@ -363,14 +363,21 @@ _PSEUDO = np.stack([pseudo_inertia(e).ravel() for e in np.eye(10)], axis=1)  # (
 
 def _newton_step(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     """H^-1 g for a positive definite H whose scales span many decades near the boundary (the barrier's
-    curvature grows as 1 / distance^2): Jacobi-scaled Cholesky, least squares where even that fails."""
-    d = 1.0 / np.sqrt(np.maximum(np.diag(H), 1e-300))
+    curvature grows as 1 / distance^2): Jacobi-scaled Cholesky; least squares where even that fails; the scaled
+    gradient where LAPACK's SVD does not converge either (as gesdd did on a UR5e refit's 1e-22 .. 8e5 entries),
+    which the line search still turns into a decrease."""
+    d = 1.0 / np.sqrt(np.maximum(np.abs(np.diag(H)), 1e-300))
     scaled = H * d[:, None] * d[None, :]
     try:
         chol = np.linalg.cholesky(scaled)
         return d * np.linalg.solve(chol.T, np.linalg.solve(chol, d * g))  # type: ignore[no-any-return]
     except np.linalg.LinAlgError:
-        return d * np.linalg.lstsq(scaled, d * g, rcond=None)[0]  # type: ignore[no-any-return]
+        pass
+    try:
+        step = d * np.linalg.lstsq(scaled, d * g, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        return d * d * g  # type: ignore[no-any-return]
+    return step if np.all(np.isfinite(step)) and float(g @ step) > 0 else d * d * g  # type: ignore[no-any-return]
 
 
 def _barrier_solve(theta: np.ndarray, metric: np.ndarray, anchor: np.ndarray, bodies: np.ndarray) -> np.ndarray:
