@@ -8,7 +8,7 @@ import pytest
 
 from dynamics.inertia import is_consistent, mass_com_inertia, pseudo_inertia
 from dynamics.plant import load_plant
-from identify.diagnose.calibrate import CONSISTENT_MARGIN, _newton_step, consistent_parameters
+from identify.diagnose.calibrate import CONSISTENT_MARGIN, _barrier_solve, _newton_step, consistent_parameters
 
 _PSEUDO = np.stack([pseudo_inertia(e).ravel() for e in np.eye(10)], axis=1)  # theta_b -> vec J_b
 
@@ -42,14 +42,56 @@ def test_the_projection_reaches_the_optimum_a_frobenius_metric_makes_known() -> 
     theta, _ = _inconsistent()
     metric = np.kron(np.eye(2), _PSEUDO)  # (32, 20): each body's pseudo-inertia, entry by entry
     fixed = consistent_parameters(plant, theta, metric, [])
-    J = pseudo_inertia(theta[10:20])
-    eps = CONSISTENT_MARGIN * max(np.linalg.norm(J, 2), np.linalg.norm(pseudo_inertia(plant.theta[10:20]), 2))
-    w, V = np.linalg.eigh(J)
-    assert w[0] < 0  # the body is inconsistent: the clip moves it
-    want = (V * np.maximum(w, eps)) @ V.T
-    np.testing.assert_allclose(pseudo_inertia(fixed[10:20]), want, atol=1e-6 * np.abs(w).max())
+    _assert_clipped(fixed[10:20], theta[10:20], plant.theta[10:20])
     np.testing.assert_allclose(fixed[:10], theta[:10], atol=1e-7)  # the consistent body stays
     assert is_consistent(fixed[10:20])
+
+
+def _assert_clipped(fixed: np.ndarray, theta: np.ndarray, anchor: np.ndarray) -> None:
+    """`fixed`'s pseudo-inertia is `theta`'s with its eigenvalues clipped at the margin."""
+    a, b = CONSISTENT_MARGIN
+    eps = a + b * max(float(np.trace(pseudo_inertia(v)[:3, :3])) for v in (theta, anchor))
+    w, V = np.linalg.eigh(pseudo_inertia(theta))
+    assert w[0] < eps  # the body is inconsistent: the clip moves it
+    want = (V * np.maximum(w, eps)) @ V.T
+    np.testing.assert_allclose(pseudo_inertia(fixed), want, atol=1e-6 * np.abs(w).max())
+
+
+def test_a_fit_barely_inconsistent_is_projected_as_exactly_as_one_far_off() -> None:
+    """The stopping rule is relative to the objective at the optimum, not at the start: a fit just past the
+    boundary, with a nominal far from it, still lands on the clip (relative to the start it stopped 0.25 % above
+    the optimum, the directions only the weak pull holds off by 30 %)."""
+    plant = load_plant("two_link")
+    theta = plant.theta.copy()
+    J = pseudo_inertia(theta[10:20])
+    w, V = np.linalg.eigh(J)
+    w[0] = -1e-6  # just past the boundary
+    theta[10:20] = np.linalg.lstsq(_PSEUDO, ((V * w) @ V.T).ravel(), rcond=None)[0]
+    nominal = 1.5 * plant.theta  # far from the fit
+    fixed = consistent_parameters(plant, theta, np.kron(np.eye(2), _PSEUDO), [], nominal=nominal)
+    _assert_clipped(fixed[10:20], theta[10:20], nominal[10:20])
+
+
+def test_a_light_body_is_consistent_with_the_margin_the_mjcf_text_needs() -> None:
+    """The barrier's margin scales with each body's second moments, so that `is_consistent` (the margin the MJCF
+    text's six digits need) holds without a repair: a 0.011 kg link came out inside J >= 1e-6 ||J|| and still
+    failed it."""
+    plant = load_plant("two_link")
+    theta, metric = _inconsistent()
+    theta[10:20] *= 0.011 / theta[10]
+    nominal = plant.theta.copy()
+    nominal[10:20] *= 0.011 / nominal[10]
+    fixed = consistent_parameters(plant, theta, metric, [], nominal=nominal)
+    assert all(is_consistent(fixed[10 * b : 10 * b + 10]) for b in range(2))
+
+
+def test_a_block_of_a_joint_that_carries_no_body_is_held() -> None:
+    """Only the bodies are projected; a joint that carries none (its block is no MJCF body) keeps the fit's
+    values instead of absorbing the torque change the projection makes."""
+    theta, metric = _inconsistent()
+    metric = metric + 0.1  # couples every block
+    fixed, converged = _barrier_solve(theta, metric, load_plant("two_link").theta, np.array([1]), (theta,))
+    assert converged and np.array_equal(fixed[:10], theta[:10]) and is_consistent(fixed[10:20])
 
 
 def test_a_nominal_body_at_the_boundary_still_gives_a_consistent_one() -> None:

@@ -329,7 +329,8 @@ def consistent_parameters(
 
     the change of the predicted training torques plus a weak pull (mu = 1e-4 ||metric||) towards the nominal
     values that settles the directions the data do not see, with every body's pseudo-inertia J_b positive
-    definite (Wensing, Kim and Slotine 2017) by a margin eps_b = `CONSISTENT_MARGIN` ||J_b||. The problem is
+    definite (Wensing, Kim and Slotine 2017) by a margin eps_b = a + b tr(Sigma_b) (the body's second moments)
+    (`CONSISTENT_MARGIN`: twice the margin `is_consistent` asks, so that no repair follows). The problem is
     convex (a quadratic over linear matrix inequalities) and is solved to its optimum by a log-det barrier
     method (`_barrier_solve`). A log-Cholesky parametrisation, as before, never converged on these problems:
     the optimum lies on the boundary of the consistent set, where its coordinates run off to infinity (2000
@@ -347,18 +348,27 @@ def consistent_parameters(
     if all(is_consistent(theta[10 * b : 10 * b + 10]) for b in range(plant.nv) if plant.carries_body[b]):
         return theta
     anchor = plant.theta if nominal is None else nominal
-    fixed = _barrier_solve(theta, metric, anchor, np.flatnonzero(plant.carries_body))
+    bodies = np.flatnonzero(plant.carries_body)
+    fixed, converged = _barrier_solve(theta, metric, anchor, bodies, (theta, anchor))
+    if not all(is_consistent(fixed[10 * b : 10 * b + 10]) for b in bodies):  # a body grown past the margin's scale
+        fixed, converged = _barrier_solve(theta, metric, anchor, bodies, (theta, anchor, fixed))
     change = float(np.linalg.norm(metric @ (fixed - theta)) / max(float(np.linalg.norm(metric @ theta)), 1e-300))
     notes.append(
         "the fitted inertials had no physical realisation; the nearest consistent ones are written "
         f"(relative change of the predicted training torques {change:.2%})"
+        + ("" if converged else "; the projection stopped before its tolerance (60 x 100 Newton steps)")
     )
     return fixed
 
 
-CONSISTENT_MARGIN = 1e-6  # each body's pseudo-inertia kept >= this x its norm (a shape 1e-6 of the body's size)
-_GAP = 1e-10  # the barrier method stops within this share of the starting objective of the optimum
+CONSISTENT_MARGIN = (1e-7, 1e-5)  # pseudo-inertia kept >= (a + b tr Sigma_b) 1, Sigma_b its second moments
+_GAP = 1e-10  # the barrier method stops within this share of the objective of the optimum
 _PSEUDO = np.stack([pseudo_inertia(e).ravel() for e in np.eye(10)], axis=1)  # (16, 10): theta_b -> vec J_b
+
+
+def _moment_scale(scales: tuple[np.ndarray, ...], k: int) -> float:
+    """[kg m^2] the largest trace of body k's second moments (J's upper 3 x 3) among the parameter vectors."""
+    return max(float(np.trace(pseudo_inertia(v[10 * k : 10 * k + 10])[:3, :3])) for v in scales)
 
 
 def _newton_step(H: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -380,64 +390,82 @@ def _newton_step(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     return step if np.all(np.isfinite(step)) and float(g @ step) > 0 else d * d * g  # type: ignore[no-any-return]
 
 
-def _barrier_solve(theta: np.ndarray, metric: np.ndarray, anchor: np.ndarray, bodies: np.ndarray) -> np.ndarray:
-    """(10 nv,) the minimiser of `consistent_parameters`'s problem: Newton steps on the objective minus
-    t sum_b log det(J_b - eps_b 1), t shrinking tenfold until the duality gap 4 t (bodies) is below `_GAP` of
-    the objective at the start (Boyd and Vandenberghe, ch. 11). Bodies whose parameters are all zero (none
-    to make consistent) are left free."""
+def _barrier_solve(
+    theta: np.ndarray, metric: np.ndarray, anchor: np.ndarray, bodies: np.ndarray, scales: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, bool]:
+    """The minimiser of `consistent_parameters`'s problem over the blocks of `bodies` (10 nv,), and whether it
+    converged: Newton steps on the objective minus t sum_b log det(J_b - eps_b 1), t shrinking tenfold until the
+    duality gap 4 t (bodies) is below `_GAP` of the objective (Boyd and Vandenberghe, ch. 11). Every other block
+    (a joint that carries no body, whose values no MJCF holds) keeps `theta`'s values. Each margin eps_b scales
+    with the body's second moments in `scales` (parameter vectors: the fit, the anchor, a previous solution)."""
     n = len(theta)
+    a, b = CONSISTENT_MARGIN
+    # the margin in the body's second moments Sigma = J's upper 3 x 3 (their trace bounds any two principal
+    # moments about the centre of mass, whose sums is_consistent compares with a margin of 1e-7 + 1e-5 of them)
+    eps = {int(k): a + b * _moment_scale(scales, int(k)) for k in bodies}
+    free = np.concatenate([np.arange(10 * k, 10 * k + 10) for k in eps]) if eps else np.zeros(0, int)
     mu = 1e-4 * float(np.linalg.norm(metric, 2))
-    Q = metric.T @ metric + mu**2 * np.eye(n)
-    q = metric.T @ (metric @ theta) + mu**2 * anchor
-    norms = [max(np.linalg.norm(pseudo_inertia(v[10 * b : 10 * b + 10]), 2) for v in (theta, anchor)) for b in bodies]
-    kept = [(int(b), CONSISTENT_MARGIN * s) for b, s in zip(bodies, norms, strict=True) if s > 0]
-    x = anchor.copy()
-    for b, eps in kept:  # a start strictly inside: the nominal body, lifted where it is not
-        cut = slice(10 * b, 10 * b + 10)
+    x = theta.copy()
+    x[free] = anchor[free]
+    for k, e in eps.items():  # a start strictly inside: the nominal body, lifted where it is not
+        cut = slice(10 * k, 10 * k + 10)
         w, V = np.linalg.eigh(pseudo_inertia(x[cut]))
-        if w[0] <= 2 * eps:
-            x[cut] = np.linalg.lstsq(_PSEUDO, ((V * np.maximum(w, 2 * eps)) @ V.T).ravel(), rcond=None)[0]
+        if w[0] <= 2 * e:
+            x[cut] = np.linalg.lstsq(_PSEUDO, ((V * np.maximum(w, 2 * e)) @ V.T).ravel(), rcond=None)[0]
+    A = metric[:, free]
+    Q = A.T @ A + mu**2 * np.eye(len(free))
+    q = A.T @ (metric @ (theta - x) + A @ x[free]) + mu**2 * anchor[free]  # the held blocks enter as a constant
 
     def objective(y: np.ndarray) -> float:  # as sums of squares: the expanded quadratic cancels to round-off
-        return float(np.sum((metric @ (y - theta)) ** 2) + mu**2 * np.sum((y - anchor) ** 2))
+        return float(np.sum((metric @ (y - theta)) ** 2) + mu**2 * np.sum((y[free] - anchor[free]) ** 2))
 
-    def log_det(y: np.ndarray) -> float | None:  # None outside the margin
-        total = 0.0
-        for b, eps in kept:
+    def factors(y: np.ndarray) -> list[np.ndarray] | None:  # Cholesky of each J_b - eps_b 1; None outside
+        out = []
+        for k, e in eps.items():
             try:
-                chol = np.linalg.cholesky(pseudo_inertia(y[10 * b : 10 * b + 10]) - eps * np.eye(4))
+                out.append(np.linalg.cholesky(pseudo_inertia(y[10 * k : 10 * k + 10]) - e * np.eye(4)))
             except np.linalg.LinAlgError:
                 return None
-            total += 2.0 * float(np.sum(np.log(np.diag(chol))))
-        return total
+        return out
 
-    start = max(objective(x), 1e-300)
-    t = start / (4 * max(len(kept), 1))
-    for _ in range(60):  # outer steps: t from the start's objective down by 1e10 takes 11
+    def barrier(y: np.ndarray) -> float | None:
+        chol = factors(y)
+        return None if chol is None else -2.0 * sum(float(np.sum(np.log(np.diag(c)))) for c in chol)
+
+    m = 4 * len(eps)
+    t = max(objective(x), 1e-300) / max(m, 1)
+    floor = 1e-14 * max(objective(x), 1e-300)  # the objective's scale where the optimum's is zero
+    converged = False
+    for _ in range(60):  # outer steps, t tenfold smaller each
         for _ in range(100):  # Newton steps at this t
-            g, H = 2.0 * (Q @ x - q), 2.0 * Q
-            for b, eps in kept:
-                cut = slice(10 * b, 10 * b + 10)
-                inv = np.linalg.inv(pseudo_inertia(x[cut]) - eps * np.eye(4))
+            chol = factors(x)
+            assert chol is not None  # every accepted step stays inside
+            xf = x[free]
+            g, H = 2.0 * (Q @ xf - q), 2.0 * Q
+            for i, c in enumerate(chol):
+                inv = np.linalg.solve(c.T, np.linalg.solve(c, np.eye(4)))
+                cut = slice(10 * i, 10 * i + 10)
                 g[cut] -= t * _PSEUDO.T @ inv.ravel()
                 H[cut, cut] += t * _PSEUDO.T @ np.kron(inv, inv) @ _PSEUDO
-            dx = -_newton_step(H, g)
-            decrement = float(-g @ dx)
-            if decrement <= 2e-10 * start:
+            dx = np.zeros(n)
+            dx[free] = -_newton_step(H, g)
+            decrement = float(-g @ dx[free])
+            if decrement <= 2 * _GAP * max(objective(x), floor):
                 break
-            here, step = objective(x) - t * (log_det(x) or 0.0), 1.0
+            here, step = objective(x) + t * (barrier(x) or 0.0), 1.0
             while step > 1e-6:  # backtracking: stay inside and decrease enough
-                there = log_det(x + step * dx)
-                if there is not None and objective(x + step * dx) - t * there <= here - 0.25 * step * decrement:
+                there = barrier(x + step * dx)
+                if there is not None and objective(x + step * dx) + t * there <= here - 0.25 * step * decrement:
                     break
                 step *= 0.5
             if step <= 1e-6:  # no decrease left to resolve in floating point: centred as well as it can be
                 break
             x = x + step * dx
-        if 4 * len(kept) * t <= _GAP * start:
+        if m * t <= _GAP * max(objective(x), floor):
+            converged = True
             break
         t *= 0.1
-    return x
+    return x, converged
 
 
 def _generic_regressor(plant: Plant, n: int = 200) -> np.ndarray:

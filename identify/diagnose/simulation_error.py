@@ -115,8 +115,8 @@ def simulation_error(
             reference the simulation is compared with.
         tau_applied: (N, nv) joint torque applied over [t_k, t_k+1) [N m].
         window_s: window length [s].
-        max_windows: simulate at most this many windows, every k-th one (k the least that keeps to it), spread over
-            the whole record: a long record's error is estimated at a bounded cost. None: every window.
+        max_windows: simulate at most this many windows, spread evenly over the whole record (the first and the
+            last among them): a long record's error is estimated at a bounded cost. None: every window.
     """
     step, dt = stepper
     if window_s <= 0:
@@ -133,8 +133,9 @@ def simulation_error(
         raise ValueError(
             f"the record ({time[-1] - time[0]:.3f} s) is shorter than one window (window_s = {window_s} s)"
         )
-    every = 1 if max_windows is None else -(-len(starts) // max_windows)
-    simulated = starts[::every]
+    simulated = starts
+    if max_windows is not None and len(starts) > max_windows:  # evenly spread, the first and the last among them
+        simulated = [starts[i] for i in np.unique(np.round(np.linspace(0, len(starts) - 1, max_windows)).astype(int))]
     times, sims, refs = [], [], []
     for first in range(0, len(simulated), _BATCH):  # a batch of windows at a time: memory stays that of a batch
         idx = np.array(simulated[first : first + _BATCH])
