@@ -156,7 +156,7 @@ def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
 def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or below
     `MIN_FILTER_CYCLES` cycles over the shortest one, or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
-    samples (known once read)."""
+    samples or longer than the shortest file (known once read)."""
     slowest = max(datasets, key=lambda d: d.dt)
     shortest = min(datasets, key=lambda d: float(d.time[-1] - d.time[0]))
     nyquist = 0.5 / slowest.dt
@@ -181,6 +181,12 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
             f"diagnose.window_s={window:g} s is shorter than {MIN_WINDOW_SAMPLES} samples of {slowest.source} "
             f"({MIN_WINDOW_SAMPLES * slowest.dt:.3g} s at {1 / slowest.dt:g} Hz): a re-started simulation needs "
             "some steps to show an error"
+        )
+    if window > float(shortest.time[-1] - shortest.time[0]):
+        raise ConfigError(
+            f"diagnose.window_s={window:g} s is longer than {shortest.source} "
+            f"({float(shortest.time[-1] - shortest.time[0]):.4g} s): the simulation error re-starts the simulation "
+            "every window of each validation file; shorten it"
         )
 
 

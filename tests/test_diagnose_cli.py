@@ -198,6 +198,7 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("diagnose.derivatives=spectral", r"unknown diagnose\.derivatives 'spectral'; valid choices: butterworth"),
         ("diagnose.window_s=0.001", r"diagnose\.window_s=0\.001 s is shorter than 5 samples of .*train\.csv"),
         ("diagnose.max_windows=0", r"diagnose\.max_windows must be >= 1, got 0"),
+        ("diagnose.window_s=1000", r"diagnose\.window_s=1000 s is longer than .*\.csv \([0-9.]+ s\)"),
         ("data.columns=5", r"data\.columns must map the harness's names to the file's columns .* got 5"),
         ("++data.band_hz=abc", r"data\.band_hz must be a number, got 'abc'"),
         ("++data.band_hz=0", r"data\.band_hz must be > 0"),
