@@ -333,6 +333,16 @@ def _criterion(verdict: str, selection: dict[str, Any]) -> str:
         return template.split(":")[0]
 
 
+def _windows_note(windows: dict | None) -> str:
+    """The end of the header's sentence on the re-started simulations: which of their windows are shown."""
+    if not windows or windows["simulated"] >= windows["of"]:
+        return "."
+    return (
+        f" ({windows['simulated']} of the {windows['of']} windows, spread evenly over the records: "
+        "`diagnose.max_windows`; the gaps between them are not simulated)."
+    )
+
+
 def _band_label(band_hz: float | None) -> str:
     return f"0-{band_hz:g} Hz band" if band_hz is not None else "unfiltered"
 
@@ -364,7 +374,8 @@ def record_diagnosis(
         f"**verdict: {result.verdict}**: {_criterion(result.verdict, selection)}",
         f"**why, on these data:** {result.verdict_reason or '(not recorded)'}",
         f"Torques and residuals are compared in the {band}, as in the table below; the q panels re-start the "
-        f"simulations from the measured state every {result.info.get('window_s', 0.25):g} s.",
+        f"simulations from the measured state every {result.info.get('window_s', 0.25):g} s"
+        + _windows_note(result.info.get("simulation_windows")),
     ]
     body = "\n".join(ln for ln in findings_markdown.splitlines() if not ln.startswith("**verdict"))
     ghost_plant = calibrated or plant

@@ -124,7 +124,8 @@ def test_run_recording_camera_frames_the_whole_robot_with_mount_and_axes(run_dir
 
 @pytest.fixture(scope="module")
 def diagnosis_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A pendulum with hidden viscous friction, diagnosed on one training and two validation files in a band."""
+    """A pendulum with hidden viscous friction, diagnosed on one training and two validation files in a band,
+    its simulation error on 10 of their windows."""
     folder = tmp_path_factory.mktemp("diag")
     _, train, val_a = simulate("pendulum", [HiddenEffect("viscous_friction", "swing", 0.01)], 2, folder)
     _, _, val_b = simulate("pendulum", [HiddenEffect("viscous_friction", "swing", 0.01)], 3, folder)
@@ -140,6 +141,7 @@ def diagnosis_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
             "diagnose.band_hz=4",
             f"output_dir={out}",
             "diagnose.references=null",
+            "diagnose.max_windows=10",  # fewer than the records hold: the header says which are shown
         ],
         config_name="diagnose",
     )
@@ -179,6 +181,9 @@ def test_diagnosis_recording_names_every_record_the_band_and_the_criterion(diagn
     assert "**data set:** csv: train.csv, val_a.csv, val_b.csv" in findings
     assert "**verdict: explained**: at least one effect passed the selection" in findings
     assert "BIC drop > 10" in findings
+    windows = json.loads((diagnosis_dir / "diagnosis.json").read_text())["info"]["simulation_windows"]
+    assert windows["simulated"] == 10 < windows["of"]
+    assert f"(10 of the {windows['of']} windows, spread evenly over the records" in findings
     root = "/validation/0_val_a/joints/swing"
     assert _color(data, f"{root}/tau/measured") == ROLE_COLORS["measured"]
     assert _color(data, f"{root}/tau/nominal") == ROLE_COLORS["nominal"]
