@@ -16,6 +16,7 @@ from dynamics.errors import (
 from dynamics.inertia import (
     body_from_log_cholesky,
     from_mass_com_inertia,
+    from_pseudo_inertia,
     is_consistent,
     log_cholesky_from_body,
     mass_com_inertia,
@@ -59,6 +60,7 @@ __all__ = [
     "body_parameters",
     "check_against_mujoco",
     "from_mass_com_inertia",
+    "from_pseudo_inertia",
     "independent_columns",
     "inverse_dynamics",
     "is_consistent",

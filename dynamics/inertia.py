@@ -19,6 +19,7 @@ __all__ = [
     "body_and_jacobian",
     "body_from_log_cholesky",
     "from_mass_com_inertia",
+    "from_pseudo_inertia",
     "is_consistent",
     "log_cholesky_from_body",
     "mass_com_inertia",
@@ -65,8 +66,8 @@ def pseudo_inertia(body: np.ndarray) -> np.ndarray:
     return J
 
 
-def _from_pseudo(J: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) pseudo-inertia -> (..., 10) body parameters (linear)."""
+def from_pseudo_inertia(J: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) pseudo-inertia -> (..., 10) body parameters (linear; the inverse of `pseudo_inertia`)."""
     S = J[..., :3, :3]
     return np.stack(
         [
@@ -103,7 +104,7 @@ def body_and_jacobian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         dU[i + 1, r, c] = U[r, c] if i < 3 else scale
     dJ = dU @ U.T
     dJ = dJ + np.swapaxes(dJ, 1, 2)
-    return _from_pseudo(U @ U.T), _from_pseudo(dJ).T
+    return from_pseudo_inertia(U @ U.T), from_pseudo_inertia(dJ).T
 
 
 def body_from_log_cholesky(x: np.ndarray) -> np.ndarray:

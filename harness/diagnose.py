@@ -159,8 +159,9 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     samples or longer than the shortest file (known once read)."""
     slowest = max(datasets, key=lambda d: d.dt)
     shortest = min(datasets, key=lambda d: float(d.time[-1] - d.time[0]))
+    span = float(shortest.time[-1] - shortest.time[0])
     nyquist = 0.5 / slowest.dt
-    lowest = MIN_FILTER_CYCLES / float(shortest.time[-1] - shortest.time[0])
+    lowest = MIN_FILTER_CYCLES / span
     key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
     for name, value in (("diagnose.cutoff_hz", cfg.diagnose.get("cutoff_hz")), (key, _band_hz(cfg))):
         if value is not None and float(value) >= nyquist:
@@ -171,7 +172,7 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
         if value is not None and float(value) < lowest:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is below {MIN_FILTER_CYCLES} cycles over {shortest.source} "
-                f"({float(shortest.time[-1] - shortest.time[0]):.4g} s: {lowest:.3g} Hz): a low-pass that slow leaves "
+                f"({span:.4g} s: {lowest:.3g} Hz): a low-pass that slow leaves "
                 "nothing of the motion to compare or differentiate; raise it (a few times the motion's frequencies), "
                 "or check that the time column is in seconds (a log timed in minutes lasts a sixtieth as long)"
             )
@@ -182,11 +183,10 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
             f"({MIN_WINDOW_SAMPLES * slowest.dt:.3g} s at {1 / slowest.dt:g} Hz): a re-started simulation needs "
             "some steps to show an error"
         )
-    if window > float(shortest.time[-1] - shortest.time[0]):
+    if window > span:
         raise ConfigError(
-            f"diagnose.window_s={window:g} s is longer than {shortest.source} "
-            f"({float(shortest.time[-1] - shortest.time[0]):.4g} s): the simulation error re-starts the simulation "
-            "every window of each validation file; shorten it"
+            f"diagnose.window_s={window:g} s is longer than {shortest.source} ({span:.4g} s): the simulation "
+            "error re-starts the simulation every window of each validation file; shorten it"
         )
 
 

@@ -6,11 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynamics.inertia import is_consistent, mass_com_inertia, pseudo_inertia
+from dynamics.inertia import from_pseudo_inertia, is_consistent, mass_com_inertia, pseudo_inertia
 from dynamics.plant import load_plant
-from identify.diagnose.calibrate import CONSISTENT_MARGIN, _barrier_solve, _newton_step, consistent_parameters
-
-_PSEUDO = np.stack([pseudo_inertia(e).ravel() for e in np.eye(10)], axis=1)  # theta_b -> vec J_b
+from identify.diagnose.calibrate import (
+    _PSEUDO,  # theta_b -> vec J_b
+    CONSISTENT_MARGIN,
+    _barrier_solve,
+    _newton_step,
+    consistent_parameters,
+)
 
 
 def _realisable(body: np.ndarray) -> bool:
@@ -66,7 +70,7 @@ def test_a_fit_barely_inconsistent_is_projected_as_exactly_as_one_far_off() -> N
     J = pseudo_inertia(theta[10:20])
     w, V = np.linalg.eigh(J)
     w[0] = -1e-6  # just past the boundary
-    theta[10:20] = np.linalg.lstsq(_PSEUDO, ((V * w) @ V.T).ravel(), rcond=None)[0]
+    theta[10:20] = from_pseudo_inertia((V * w) @ V.T)
     nominal = 1.5 * plant.theta  # far from the fit
     fixed = consistent_parameters(plant, theta, np.kron(np.eye(2), _PSEUDO), [], nominal=nominal)
     _assert_clipped(fixed[10:20], theta[10:20], nominal[10:20])

@@ -59,6 +59,7 @@ from dynamics.friction import (
     kept_ramp,
 )
 from dynamics.inertia import (
+    from_pseudo_inertia,
     is_consistent,
     pseudo_inertia,
     repair_body,
@@ -411,10 +412,10 @@ def _barrier_solve(
         cut = slice(10 * k, 10 * k + 10)
         w, V = np.linalg.eigh(pseudo_inertia(x[cut]))
         if w[0] <= 2 * e:
-            x[cut] = np.linalg.lstsq(_PSEUDO, ((V * np.maximum(w, 2 * e)) @ V.T).ravel(), rcond=None)[0]
+            x[cut] = from_pseudo_inertia((V * np.maximum(w, 2 * e)) @ V.T)
     A = metric[:, free]
     Q = A.T @ A + mu**2 * np.eye(len(free))
-    q = A.T @ (metric @ (theta - x) + A @ x[free]) + mu**2 * anchor[free]  # the held blocks enter as a constant
+    q = A.T @ (A @ theta[free]) + mu**2 * anchor[free]  # the held blocks are theta's: they add nothing
 
     def objective(y: np.ndarray) -> float:  # as sums of squares: the expanded quadratic cancels to round-off
         return float(np.sum((metric @ (y - theta)) ** 2) + mu**2 * np.sum((y[free] - anchor[free]) ** 2))
@@ -428,9 +429,8 @@ def _barrier_solve(
                 return None
         return out
 
-    def barrier(y: np.ndarray) -> float | None:
-        chol = factors(y)
-        return None if chol is None else -2.0 * sum(float(np.sum(np.log(np.diag(c)))) for c in chol)
+    def barrier(chol: list[np.ndarray]) -> float:  # -sum log det(J_b - eps_b 1) from its factors
+        return -2.0 * sum(float(np.sum(np.log(np.diag(c)))) for c in chol)
 
     m = 4 * len(eps)
     t = max(objective(x), 1e-300) / max(m, 1)
@@ -440,8 +440,8 @@ def _barrier_solve(
         for _ in range(100):  # Newton steps at this t
             chol = factors(x)
             assert chol is not None  # every accepted step stays inside
-            xf = x[free]
-            g, H = 2.0 * (Q @ xf - q), 2.0 * Q
+            fx = objective(x)
+            g, H = 2.0 * (Q @ x[free] - q), 2.0 * Q
             for i, c in enumerate(chol):
                 inv = np.linalg.solve(c.T, np.linalg.solve(c, np.eye(4)))
                 cut = slice(10 * i, 10 * i + 10)
@@ -450,12 +450,15 @@ def _barrier_solve(
             dx = np.zeros(n)
             dx[free] = -_newton_step(H, g)
             decrement = float(-g @ dx[free])
-            if decrement <= 2 * _GAP * max(objective(x), floor):
+            if decrement <= 2 * _GAP * max(fx, floor):
                 break
-            here, step = objective(x) + t * (barrier(x) or 0.0), 1.0
+            here, step = fx + t * barrier(chol), 1.0
             while step > 1e-6:  # backtracking: stay inside and decrease enough
-                there = barrier(x + step * dx)
-                if there is not None and objective(x + step * dx) + t * there <= here - 0.25 * step * decrement:
+                inside = factors(x + step * dx)
+                if (
+                    inside is not None
+                    and objective(x + step * dx) + t * barrier(inside) <= here - 0.25 * step * decrement
+                ):
                     break
                 step *= 0.5
             if step <= 1e-6:  # no decrease left to resolve in floating point: centred as well as it can be
