@@ -21,7 +21,9 @@
    chosen. A second table low-passes every model's torque as well (both sides filtered, as the diagnosis
    fits), the other reading of "zero-phase 5 Hz filtering". Each calibrated MJCF is also judged with its
    friction rewritten as wider ramps (`widened`, `RAMPS`): how much each reading depends on the friction's
-   shape near zero speed. A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
+   shape near zero speed. Another judges the calibrated MJCF through MuJoCo's `mj_inverse` alone
+   (`mujoco_only`: without the file's `sysid_*` custom numerics, as a MuJoCo user without this harness reads
+   it). A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
    found on that file): the encoders are zeroed wherever each file began, and what a model loses with it known
    is not the zero.
 3. **What the shared files allow** (`lab_form`): the lab's own model form (`authors.author_regressor`: rigid
@@ -67,9 +69,10 @@ from scipy import optimize, signal
 from bench._coverage import SHARED_ROBOTS as ROBOTS
 from dynamics.friction import friction_solver
 from dynamics.plant import load_plant
+from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
 from envs.measured import read_many
-from harness.diagnose import record_joint_offsets, record_offsets
+from harness.diagnose import record_joint_offsets, record_offsets, state_cutoff
 from harness.setup import CONF_DIR
 from identify.derivatives import States, derive_states
 from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model, with_found_lead
@@ -145,14 +148,22 @@ def judge(
     ramps: tuple[float, ...] = (),
     *,
     angle_zero: bool = False,
-) -> tuple[dict[str, list[float]], dict[str, list[float]], dict[str, list[float]], dict[str, list[list[float]]]]:
+) -> tuple[
+    dict[str, list[float]],
+    dict[str, list[float]],
+    dict[str, list[float]],
+    dict[str, list[list[float]]],
+    dict[str, list[float]],
+]:
     """Per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band, in its two readings: each model
     evaluated unfiltered on the filtered states, and its torque low-passed as well (both sides filtered, as the
     diagnosis fits); third, the first reading's error with its own mean over the file taken out (what is left
     once a torque zero of the file's own is allowed); fourth, with `angle_zero` (else empty), the first reading
-    with the file's own angle zero given to each model (`_angle_zeroed`): per model [RMS, shift]. `ramps`: also
-    the calibrated model with its friction `widened` to each of these widths [rad/s] (`calibrated_ramp_<width>`),
-    in the first two readings."""
+    with the file's own angle zero given to each model (`_angle_zeroed`): per model [RMS, shift]; fifth, the first
+    reading with the calibrated MJCF through MuJoCo's `mj_inverse` alone (`inverse_dynamics`: the file's native
+    elements, without its `sysid_*` custom numerics: no torque sensor offset or gain, delay or custom friction law),
+    as any MuJoCo user computes it from the file. `ramps`: also the calibrated model with its friction `widened` to
+    each of these widths [rad/s] (`calibrated_ramp_<width>`), in the first two readings."""
     states, measured = _judged_states(data)
     rows, fs = states.valid, 1.0 / data.dt
     model = mujoco.MjModel.from_xml_path(str(xml_path))
@@ -172,7 +183,11 @@ def judge(
         return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in pred.items()}
 
     demeaned = {k: np.std(measured - v[rows], axis=0).tolist() for k, v in preds.items()}
-    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()}), demeaned, zeroed
+    native = {
+        **{k: v for k, v in preds.items() if k in authors},
+        "calibrated": inverse_dynamics(model, states.q, states.dq, states.ddq),
+    }
+    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()}), demeaned, zeroed, rms(native)
 
 
 def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[list[float]]]:
@@ -230,6 +245,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
     opts = cfg.diagnose
     nominal_xml = plant.path
     refit = lab_form(datasets, next(iter(authors.values())))
+    cutoff = state_cutoff(cfg)[1]  # as sysid-diagnose resolves it (the data config's, here)
 
     def run(train: list[Dataset], validation: list[Dataset]) -> Any:
         fit = partial(
@@ -237,7 +253,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
             plant,
             effects=tuple(opts.effects),
             derivatives=str(opts.derivatives),
-            derivative_options={"cutoff_hz": float(opts.cutoff_hz)},
+            derivative_options={"cutoff_hz": cutoff} if cutoff is not None else {},
             selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
             band_hz=float(cfg.data.band_hz),
             window_s=float(opts.window_s),
@@ -263,7 +279,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"
             path.write_text(dg.calibrated_xml)
-            rms, both, demeaned, zeroed = judge(path, authors, held, RAMPS, angle_zero=True)
+            rms, both, demeaned, zeroed, mujoco_only = judge(path, authors, held, RAMPS, angle_zero=True)
         rms["nominal"] = judge(nominal_xml, {}, held)[0]["calibrated"]
         rms["lab_form_others"], rms["lab_form_all"] = refit["others"][k], refit["all"][k]
         rms["lab_form_self"] = refit["self"][k]
@@ -277,6 +293,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
                 "best_authors": best.tolist(),
                 "wins": _at_most(rms["calibrated"], best),
                 "both_filtered": both,
+                "mujoco_only": mujoco_only,
                 "demeaned": {k: v for k, v in demeaned.items() if k == "calibrated" or k in authors},
                 "angle_zeroed": {k: v[0] for k, v in zeroed.items()},
                 "angle_zero_shift": {k: v[1] for k, v in zeroed.items()},
@@ -368,6 +385,12 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             "every model): how much of a loss is the file's zero",
         ),
         (
+            "mujoco_only",
+            "the calibrated MJCF through MuJoCo's `mj_inverse` alone (the file's native elements: inertials, "
+            "armature, damping, stiffness, frictionloss; its `sysid_*` custom numerics left out, here the torque "
+            "sensor's offset), as any MuJoCo user computes it from the file without this harness",
+        ),
+        (
             "angle_zeroed",
             "each model given the held-out file's own angle zero (the constant shift of its angles that fits that "
             "model best, found on the file itself; `angle_zero_shift` in the JSON): what is left once the file's "
@@ -426,9 +449,9 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
 
 
 def _totals(tables: dict[str, dict[str, Any]], reading: str, model: str) -> tuple[float, int, int, int]:
-    """Over every split of `tables`, in `reading` (`torque_rms`, `both_filtered` or `angle_zeroed`): the sum of
-    `model`'s held-out RMS over the joints, the joints and the splits (every joint) where it is at most the best lab
-    model, and the number of joints."""
+    """Over every split of `tables`, in `reading` (`torque_rms`, `both_filtered`, `mujoco_only` or `angle_zeroed`):
+    the sum of `model`'s held-out RMS over the joints, the joints and the splits (every joint) where it is at most
+    the best lab model, and the number of joints."""
     total, joints, splits, n = 0.0, 0, 0, 0
     for t in tables.values():
         for s in t["splits"]:
@@ -449,7 +472,7 @@ def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
     n_splits = sum(len(t["splits"]) for t in tables.values())
     lines = []
     every = [s for t in tables.values() for s in t["splits"]]
-    for reading in ("torque_rms", "both_filtered", "angle_zeroed"):
+    for reading in ("torque_rms", "both_filtered", "mujoco_only", "angle_zeroed"):
         if not all(reading in s for s in every):
             continue  # tables from before the reading was judged
         total, joints, splits, n = _totals(tables, reading, "calibrated")

@@ -163,7 +163,7 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     nyquist = 0.5 / slowest.dt
     lowest = MIN_FILTER_CYCLES / span
     key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
-    for name, value in (("diagnose.cutoff_hz", cfg.diagnose.get("cutoff_hz")), (key, _band_hz(cfg))):
+    for name, value in (state_cutoff(cfg), (key, _band_hz(cfg))):
         if value is not None and float(value) >= nyquist:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
@@ -201,6 +201,22 @@ def _band_hz(cfg: DictConfig) -> float | None:
     if band is None:
         band = cfg.data.get("band_hz")
     return float(band) if band is not None else None
+
+
+DEFAULT_CUTOFF_HZ = 10.0  # the state filter's cut-off where neither diagnose.cutoff_hz nor the data config sets one
+
+
+def state_cutoff(cfg: DictConfig) -> tuple[str, float | None]:
+    """The key that sets the Butterworth cut-off of the angles before they are differentiated, and that cut-off
+    [Hz]: `diagnose.cutoff_hz` when set; else the data config's `cutoff_hz` (the state filter the logs' models are
+    judged with, such as the DFKI arm's 5 Hz; null there: 4 x the excitation's bandwidth); else
+    `DEFAULT_CUTOFF_HZ`."""
+    if cfg.diagnose.get("cutoff_hz") is not None:
+        return "diagnose.cutoff_hz", float(cfg.diagnose.cutoff_hz)
+    if "cutoff_hz" in cfg.data:
+        value = cfg.data.cutoff_hz
+        return "data.cutoff_hz", None if value is None else float(value)
+    return "diagnose.cutoff_hz", DEFAULT_CUTOFF_HZ
 
 
 def _hard_friction(cfg: DictConfig) -> bool:
@@ -281,7 +297,8 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
             stage(f"repaired {Path(d.source).name}: {r.message}")
     ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
-    derivative_options = {"cutoff_hz": float(opts.cutoff_hz)} if opts.cutoff_hz is not None else {}
+    cutoff = state_cutoff(cfg)[1]
+    derivative_options = {"cutoff_hz": cutoff} if cutoff is not None else {}
     # at the full rate: thinning would blur a stuck or clipped torque
     anomalies = find_anomalies(datasets, plant.hinge, plant.q_range, plant.limit_margin)
     validation = cfg.data.get("validation")

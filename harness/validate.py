@@ -326,6 +326,7 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
     _number(cfg, "diagnose.cutoff_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "diagnose.band_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "data.band_hz", low=0.0, low_open=True, optional=True)
+    _number(cfg, "data.cutoff_hz", low=0.0, low_open=True, optional=True)
     _number(cfg, "data.tau_lead_s", low=0.0, optional=True)
     _number(cfg, "diagnose.window_s", low=0.0, low_open=True)
     _number(cfg, "diagnose.max_rows", integer=True, low=1000, optional=True)

@@ -184,3 +184,31 @@ def test_a_bad_reference_model_file_is_one_line_naming_the_file_and_the_key(
         reference_models("auto", [tmp_path / "log.csv"])
     with pytest.raises(DataError, match=r"diagnose.references=null compares with none$"):
         reference_models([str(path)], [tmp_path / "log.csv"])
+
+
+def test_the_mujoco_only_reading_leaves_out_what_mujoco_has_no_attribute_for(tmp_path: Path) -> None:
+    """`bench.diagnose.judge`'s fifth reading (`mujoco_only`): the calibrated MJCF through `mj_inverse` alone, as a
+    MuJoCo user without this harness reads the file. A torque sensor offset of 0.05 N m on the shoulder, written as
+    the harness's `sysid_torque_sensor_shoulder` numeric, is in the first reading and not in this one: there the
+    shoulder is off by the offset, the elbow the same in both."""
+    from bench.diagnose import judge
+    from dynamics.plant import load_plant
+    from dynamics.torque import inverse_dynamics
+    from envs.dataset import Dataset
+
+    plant = load_plant("two_link")
+    t = np.arange(0.0, 8.0, 0.002)
+    w = 2 * np.pi * np.array([0.4, 0.7])
+    q = np.column_stack([0.6 * np.sin(w[0] * t), 0.9 * np.sin(w[1] * t + 0.3)])
+    dq = np.column_stack([0.6 * w[0] * np.cos(w[0] * t), 0.9 * w[1] * np.cos(w[1] * t + 0.3)])
+    ddq = np.column_stack([-0.6 * w[0] ** 2 * np.sin(w[0] * t), -0.9 * w[1] ** 2 * np.sin(w[1] * t + 0.3)])
+    tau = inverse_dynamics(plant, q, dq, ddq) + np.array([0.05, 0.0])
+    data = Dataset(t, q, tau, plant.joint_names, np.ones(2, bool))
+    text = Path(plant.path).read_text()
+    numeric = '<custom><numeric name="sysid_torque_sensor_shoulder" size="2" data="1 0.05"/></custom>\n</mujoco>'
+    path = tmp_path / "offset.xml"
+    path.write_text(text[: text.rindex("</mujoco>")] + numeric)
+    rms, _, _, _, mujoco_only = judge(path, {}, data)
+    assert rms["calibrated"][0] < 0.005 and rms["calibrated"][1] < 0.005, rms
+    assert mujoco_only["calibrated"][0] == pytest.approx(0.05, abs=0.005)
+    assert mujoco_only["calibrated"][1] == pytest.approx(rms["calibrated"][1], abs=1e-9)

@@ -169,7 +169,7 @@ def test_a_text_column_the_diagnosis_does_not_use_is_listed_not_refused(csv_file
     assert ignored[str(noted)] == [*ignored[str(csv_files[1])], "comment"]  # (ddq: the states are derived)
 
 
-@pytest.mark.parametrize("key", ["diagnose.band_hz", "diagnose.cutoff_hz"])
+@pytest.mark.parametrize("key", ["diagnose.band_hz", "diagnose.cutoff_hz", "data.cutoff_hz"])
 def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     csv_files: list[Path], tmp_path: Path, key: str
 ) -> None:
@@ -181,6 +181,28 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     with pytest.raises(ConfigError, match=rf"{key}=0\.001 Hz is below 5 cycles over .*validation\.csv \(.* 1 Hz\)"):
         cli.run(_config(csv_files, tmp_path, f"{key}=0.001"))
     assert not any(tmp_path.iterdir())
+
+
+def test_the_state_filter_is_the_data_configs_unless_diagnose_sets_one(csv_files: list[Path], tmp_path: Path) -> None:
+    """The angles' cut-off before they are differentiated: `diagnose.cutoff_hz` when set, else the data config's
+    `cutoff_hz` (the DFKI configs: 5 Hz, the band their models are judged in, so that the fit sees the judge's
+    states), null there: 4 x the excitation's bandwidth; a data config without the key: 10 Hz."""
+    quick = ("diagnose.recording=false", "diagnose.final_fit=false")
+
+    def cutoffs(*extra: str) -> list[float]:
+        used = cli.run(_config(csv_files, tmp_path, "overwrite=true", *quick, *extra))["info"]["derivatives"]
+        assert list(used["cutoff_by_record"]) == [str(p) for p in csv_files]
+        return list(used["cutoff_by_record"].values())
+
+    assert cutoffs() == [10.0, 10.0]  # conf/data/csv.yaml
+    assert cutoffs("data.cutoff_hz=7") == [7.0, 7.0]
+    assert cutoffs("data.cutoff_hz=7", "diagnose.cutoff_hz=8") == [8.0, 8.0]
+    derived = cutoffs("data.cutoff_hz=null")  # each file's own excitation: two multi-sines, two bandwidths
+    assert derived[0] != derived[1] and all(5.0 < c < 100.0 and c != 10.0 for c in derived)
+    assert cutoffs("~data.cutoff_hz") == [cli.DEFAULT_CUTOFF_HZ] * 2
+    for data in ("dfki_double_pendulum", "dfki_double_pendulum_c1"):
+        cfg = compose_config(["system=two_link", f"data={data}"], config_name="diagnose")
+        assert cli.state_cutoff(cfg) == ("data.cutoff_hz", 5.0) == ("data.cutoff_hz", float(cfg.data.band_hz))
 
 
 @pytest.mark.parametrize(
@@ -198,6 +220,8 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
         ("diagnose.derivatives=spectral", r"unknown diagnose\.derivatives 'spectral'; valid choices: butterworth"),
         ("diagnose.window_s=0.001", r"diagnose\.window_s=0\.001 s is shorter than 5 samples of .*train\.csv"),
         ("diagnose.max_windows=0", r"diagnose\.max_windows must be >= 1, got 0"),
+        ("data.cutoff_hz=-1", r"data\.cutoff_hz must be > 0, got -1"),
+        ("data.cutoff_hz=fast", r"data\.cutoff_hz must be a number, got 'fast'"),
         ("diagnose.window_s=1000", r"diagnose\.window_s=1000 s is longer than .*\.csv \([0-9.]+ s\)"),
         ("data.columns=5", r"data\.columns must map the harness's names to the file's columns .* got 5"),
         ("++data.band_hz=abc", r"data\.band_hz must be a number, got 'abc'"),

@@ -327,6 +327,12 @@ def analysis_band(
     return min(min(cutoffs), band_hz) if band_hz is not None else min(cutoffs)
 
 
+def _state_cutoffs(records: Sequence[Any], method: str, options: dict[str, Any]) -> dict[str, float | None]:
+    """Per record's source: the cut-off [Hz] its states were filtered at (`state_cutoff_hz`: the one asked for, or
+    the one derived from its excitation; None for exact states)."""
+    return {str(r.data.source): state_cutoff_hz(r.data, method, **options) for r in records}
+
+
 def _records(
     plant: Plant, datasets: Sequence[Dataset], method: str, options: dict[str, Any], band_hz: float | None
 ) -> list[_Record]:
@@ -965,7 +971,11 @@ def diagnose(
             "validation_samples": int(s_va.n_samples),
             "candidates": [c.key for c in pool],
             "selection": selection.__dict__,
-            "derivatives": {"method": derivatives, **options},
+            "derivatives": {
+                "method": derivatives,
+                **options,
+                "cutoff_by_record": _state_cutoffs([*tr, *va], derivatives, options),
+            },
             "window_s": window_s,
             "simulation_windows": {
                 "simulated": sum(r.windows for r in sims["calibrated"].runs),
