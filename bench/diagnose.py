@@ -21,9 +21,9 @@
    chosen. A second table low-passes every model's torque as well (both sides filtered, as the diagnosis
    fits), the other reading of "zero-phase 5 Hz filtering". Each calibrated MJCF is also judged with its
    friction rewritten as wider ramps (`widened`, `RAMPS`): how much each reading depends on the friction's
-   shape near zero speed. Another judges the calibrated MJCF through MuJoCo's `mj_inverse` alone
-   (`mujoco_only`: without the file's `sysid_*` custom numerics, as a MuJoCo user without this harness reads
-   it). A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
+   shape near zero speed. Another judges the calibrated MJCF's joint torque from MuJoCo's `mj_inverse` alone
+   (`mujoco_only`: `qfrc_inverse`, without the actuators' gain and bias or the file's `sysid_*` custom
+   numerics). A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
    found on that file): the encoders are zeroed wherever each file began, and what a model loses with it known
    is not the zero.
 3. **What the shared files allow** (`lab_form`): the lab's own model form (`authors.author_regressor`: rigid
@@ -160,9 +160,9 @@ def judge(
     diagnosis fits); third, the first reading's error with its own mean over the file taken out (what is left
     once a torque zero of the file's own is allowed); fourth, with `angle_zero` (else empty), the first reading
     with the file's own angle zero given to each model (`_angle_zeroed`): per model [RMS, shift]; fifth, the first
-    reading with the calibrated MJCF through MuJoCo's `mj_inverse` alone (`inverse_dynamics`: the file's native
-    elements, without its `sysid_*` custom numerics: no torque sensor offset or gain, delay or custom friction law),
-    as any MuJoCo user computes it from the file. `ramps`: also the calibrated model with its friction `widened` to
+    reading with the calibrated MJCF's joint torque from MuJoCo's `mj_inverse` alone (`inverse_dynamics`:
+    `qfrc_inverse`, without the actuators' gain and bias or the file's `sysid_*` custom numerics: no torque sensor
+    offset or gain, delay or custom friction law). `ramps`: also the calibrated model with its friction `widened` to
     each of these widths [rad/s] (`calibrated_ramp_<width>`), in the first two readings."""
     states, measured = _judged_states(data)
     rows, fs = states.valid, 1.0 / data.dt
@@ -386,9 +386,10 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
         ),
         (
             "mujoco_only",
-            "the calibrated MJCF through MuJoCo's `mj_inverse` alone (the file's native elements: inertials, "
-            "armature, damping, stiffness, frictionloss; its `sysid_*` custom numerics left out, here the torque "
-            "sensor's offset), as any MuJoCo user computes it from the file without this harness",
+            "the calibrated MJCF's joint torque from MuJoCo's `mj_inverse` alone (inertials, armature, damping, "
+            "stiffness, frictionloss), without the actuators' gain and bias or any `sysid_*` custom numeric (a "
+            "torque sensor's offset, a load-dependent friction, a delay): what `qfrc_inverse` says without this "
+            "harness; equal to the first reading on a split whose calibrated MJCF has none of them",
         ),
         (
             "angle_zeroed",

@@ -191,8 +191,8 @@ def test_the_state_filter_is_the_data_configs_unless_diagnose_sets_one(csv_files
 
     def cutoffs(*extra: str) -> list[float]:
         used = cli.run(_config(csv_files, tmp_path, "overwrite=true", *quick, *extra))["info"]["derivatives"]
-        assert list(used["cutoff_by_record"]) == [str(p) for p in csv_files]
-        return list(used["cutoff_by_record"].values())
+        assert [r["source"] for r in used["cutoff_by_record"]] == [str(p) for p in csv_files]
+        return [r["cutoff_hz"] for r in used["cutoff_by_record"]]
 
     assert cutoffs() == [10.0, 10.0]  # conf/data/csv.yaml
     assert cutoffs("data.cutoff_hz=7") == [7.0, 7.0]

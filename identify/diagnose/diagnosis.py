@@ -327,10 +327,11 @@ def analysis_band(
     return min(min(cutoffs), band_hz) if band_hz is not None else min(cutoffs)
 
 
-def _state_cutoffs(records: Sequence[Any], method: str, options: dict[str, Any]) -> dict[str, float | None]:
-    """Per record's source: the cut-off [Hz] its states were filtered at (`state_cutoff_hz`: the one asked for, or
-    the one derived from its excitation; None for exact states)."""
-    return {str(r.data.source): state_cutoff_hz(r.data, method, **options) for r in records}
+def _state_cutoffs(records: Sequence[Any], method: str, options: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per record (training, then validation; two blocks of one file are two records): its `source` and the
+    `cutoff_hz` [Hz] its states were filtered at (`state_cutoff_hz`: the one asked for, or the one derived from
+    its excitation; None for exact states)."""
+    return [{"source": str(r.data.source), "cutoff_hz": state_cutoff_hz(r.data, method, **options)} for r in records]
 
 
 def _records(
