@@ -72,7 +72,7 @@ from dynamics.plant import load_plant
 from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
 from envs.measured import read_many
-from harness.diagnose import record_joint_offsets, record_offsets, state_cutoff
+from harness.diagnose import derivative_options, record_joint_offsets, record_offsets
 from harness.setup import CONF_DIR
 from identify.derivatives import States, derive_states
 from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model, with_found_lead
@@ -245,7 +245,6 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
     opts = cfg.diagnose
     nominal_xml = plant.path
     refit = lab_form(datasets, next(iter(authors.values())))
-    cutoff = state_cutoff(cfg)[1]  # as sysid-diagnose resolves it (the data config's, here)
 
     def run(train: list[Dataset], validation: list[Dataset]) -> Any:
         fit = partial(
@@ -253,7 +252,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
             plant,
             effects=tuple(opts.effects),
             derivatives=str(opts.derivatives),
-            derivative_options={"cutoff_hz": cutoff} if cutoff is not None else {},
+            derivative_options=derivative_options(cfg),  # as sysid-diagnose resolves them (the data config's)
             selection=SelectionOptions(**OmegaConf.to_container(opts.selection)),  # type: ignore[arg-type]
             band_hz=float(cfg.data.band_hz),
             window_s=float(opts.window_s),

@@ -162,8 +162,7 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     span = float(shortest.time[-1] - shortest.time[0])
     nyquist = 0.5 / slowest.dt
     lowest = MIN_FILTER_CYCLES / span
-    key = "diagnose.band_hz" if cfg.diagnose.get("band_hz") is not None else "data.band_hz"
-    for name, value in (state_cutoff(cfg), (key, _band_hz(cfg))):
+    for name, value in (state_cutoff(cfg), _setting(cfg, "band_hz") or ("data.band_hz", None)):
         if value is not None and float(value) >= nyquist:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
@@ -194,13 +193,22 @@ MIN_WINDOW_SAMPLES = 5  # the shortest re-start window of the simulation error, 
 MIN_FILTER_CYCLES = 5  # the slowest state filter or analysis band: this many of its cycles over the shortest file
 
 
+def _setting(cfg: DictConfig, name: str) -> tuple[str, float | None] | None:
+    """The key that sets the filter frequency `name` [Hz], and its value: `diagnose.<name>` when set (not null), else
+    the data config's `<name>` where it has the key (a property of the logs; its null has a meaning of its own);
+    None where neither does."""
+    if cfg.diagnose.get(name) is not None:
+        return f"diagnose.{name}", float(cfg.diagnose[name])
+    if name in cfg.data:
+        value = cfg.data[name]
+        return f"data.{name}", None if value is None else float(value)
+    return None
+
+
 def _band_hz(cfg: DictConfig) -> float | None:
     """The analysis band [Hz]: `diagnose.band_hz` when set, else the data config's `band_hz` (a property of the
     hardware the logs come from, such as the DFKI arm's structural vibration), else None (no band)."""
-    band = cfg.diagnose.get("band_hz")
-    if band is None:
-        band = cfg.data.get("band_hz")
-    return float(band) if band is not None else None
+    return (_setting(cfg, "band_hz") or ("", None))[1]
 
 
 DEFAULT_CUTOFF_HZ = 10.0  # the state filter's cut-off where neither diagnose.cutoff_hz nor the data config sets one
@@ -211,12 +219,14 @@ def state_cutoff(cfg: DictConfig) -> tuple[str, float | None]:
     [Hz]: `diagnose.cutoff_hz` when set; else the data config's `cutoff_hz` (the state filter the logs' models are
     judged with, such as the DFKI arm's 5 Hz; null there: 4 x the excitation's bandwidth); else
     `DEFAULT_CUTOFF_HZ`."""
-    if cfg.diagnose.get("cutoff_hz") is not None:
-        return "diagnose.cutoff_hz", float(cfg.diagnose.cutoff_hz)
-    if "cutoff_hz" in cfg.data:
-        value = cfg.data.cutoff_hz
-        return "data.cutoff_hz", None if value is None else float(value)
-    return "diagnose.cutoff_hz", DEFAULT_CUTOFF_HZ
+    return _setting(cfg, "cutoff_hz") or ("diagnose.cutoff_hz", DEFAULT_CUTOFF_HZ)
+
+
+def derivative_options(cfg: DictConfig) -> dict[str, float]:
+    """The options of `derive_states` that sysid-diagnose uses: the `state_cutoff` where one is set (none: the
+    cut-off derived from each record's excitation)."""
+    cutoff = state_cutoff(cfg)[1]
+    return {"cutoff_hz": cutoff} if cutoff is not None else {}
 
 
 def _hard_friction(cfg: DictConfig) -> bool:
@@ -297,17 +307,16 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
             stage(f"repaired {Path(d.source).name}: {r.message}")
     ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
-    cutoff = state_cutoff(cfg)[1]
-    derivative_options = {"cutoff_hz": cutoff} if cutoff is not None else {}
+    options = derivative_options(cfg)
     # at the full rate: thinning would blur a stuck or clipped torque
     anomalies = find_anomalies(datasets, plant.hinge, plant.q_range, plant.limit_margin)
     validation = cfg.data.get("validation")
     datasets, excluded = _without_stuck_torques(datasets, anomalies, _as_list(validation) if validation else [])
     if excluded:
         stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")
-    reduced = _reduce(plant, datasets, derivatives, derivative_options, cfg, stage)
+    reduced = _reduce(plant, datasets, derivatives, options, cfg, stage)
     if reduced is not None:
-        datasets, derivatives, derivative_options = reduced
+        datasets, derivatives, options = reduced
     split = split_train_validation(
         datasets,
         validation_fraction=float(cfg.data.get("validation_fraction", 0.3)),
@@ -324,13 +333,13 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
         f"{sum(d.n_samples for d in split.validation)} validation rows"
     )
     if "rigid_body" in opts.effects:
-        _check_training_excitation(plant, split.train, tuple(cfg.system.effects), derivatives, derivative_options)
+        _check_training_excitation(plant, split.train, tuple(cfg.system.effects), derivatives, options)
     fit = partial(
         diagnose,
         plant,
         effects=tuple(opts.effects),
         derivatives=derivatives,
-        derivative_options=derivative_options,
+        derivative_options=options,
         anomalies=anomalies,
         selection=SelectionOptions(**OmegaConf.to_container(opts.selection, resolve=True)),  # type: ignore[arg-type]
         window_s=float(opts.window_s),

@@ -184,7 +184,7 @@ def test_the_swing_ups_clipped_command_is_named_on_the_logged_rows(
 def test_c1s_changing_zeros_come_with_the_start_pose_hint(shared_data: Path) -> None:
     """On C.1's default split the four training files' mean shoulder residuals differ (a zero that changes between
     files), and every file starts at the same angles and ends elsewhere: the note says so beside the options. At the
-    state cut-off `sysid-diagnose` resolves for this data config (`state_cutoff`: 5 Hz, the judging band)."""
+    state cut-off `sysid-diagnose` resolves for this data config (`derivative_options`: 5 Hz, the judging band)."""
     import numpy as np
     from omegaconf import OmegaConf
 
@@ -197,7 +197,7 @@ def test_c1s_changing_zeros_come_with_the_start_pose_hint(shared_data: Path) -> 
     data = read_many(cli.data_paths(cfg), plant, columns=OmegaConf.to_container(cfg.data.columns))  # type: ignore[arg-type]
     held = [d for d in data if Path(d.source).name in cfg.data.validation]
     train = [d for d in data if all(d is not h for h in held)]
-    options = {"cutoff_hz": cli.state_cutoff(cfg)[1]}
+    options = cli.derivative_options(cfg)
     dg = diagnose(plant, train, held, rng=np.random.default_rng(0), derivative_options=options, band_hz=5.0)
     (note,) = [n for n in dg.notes if n.startswith("shoulder: the training records' mean torque residuals")]
     assert "diagnose.record_joint_offsets=true" in note

@@ -346,12 +346,16 @@ def consistent_parameters(
             (the R factor of the stacked rigid-body regressor).
         notes: receives what was changed.
     """
-    if all(is_consistent(theta[10 * b : 10 * b + 10]) for b in range(plant.nv) if plant.carries_body[b]):
+    bodies = np.flatnonzero(plant.carries_body)
+
+    def consistent(x: np.ndarray) -> bool:
+        return all(is_consistent(x[10 * b : 10 * b + 10]) for b in bodies)
+
+    if consistent(theta):
         return theta
     anchor = plant.theta if nominal is None else nominal
-    bodies = np.flatnonzero(plant.carries_body)
     fixed, converged = _barrier_solve(theta, metric, anchor, bodies, (theta, anchor))
-    if not all(is_consistent(fixed[10 * b : 10 * b + 10]) for b in bodies):  # a body grown past the margin's scale
+    if not consistent(fixed):  # a body grown past the margin's scale
         fixed, converged = _barrier_solve(theta, metric, anchor, bodies, (theta, anchor, fixed))
     change = float(np.linalg.norm(metric @ (fixed - theta)) / max(float(np.linalg.norm(metric @ theta)), 1e-300))
     notes.append(
@@ -436,11 +440,10 @@ def _barrier_solve(
     t = max(objective(x), 1e-300) / max(m, 1)
     floor = 1e-14 * max(objective(x), 1e-300)  # the objective's scale where the optimum's is zero
     converged = False
+    chol, fx = factors(x), objective(x)  # of the current point: each accepted step's, from its line search
+    assert chol is not None  # the start is strictly inside, and every accepted step stays inside
     for _ in range(60):  # outer steps, t tenfold smaller each
         for _ in range(100):  # Newton steps at this t
-            chol = factors(x)
-            assert chol is not None  # every accepted step stays inside
-            fx = objective(x)
             g, H = 2.0 * (Q @ x[free] - q), 2.0 * Q
             for i, c in enumerate(chol):
                 inv = np.linalg.solve(c.T, np.linalg.solve(c, np.eye(4)))
@@ -454,17 +457,18 @@ def _barrier_solve(
                 break
             here, step = fx + t * barrier(chol), 1.0
             while step > 1e-6:  # backtracking: stay inside and decrease enough
-                inside = factors(x + step * dx)
-                if (
-                    inside is not None
-                    and objective(x + step * dx) + t * barrier(inside) <= here - 0.25 * step * decrement
-                ):
-                    break
+                y = x + step * dx
+                inside = factors(y)
+                if inside is not None:
+                    fy = objective(y)
+                    if fy + t * barrier(inside) <= here - 0.25 * step * decrement:
+                        break
                 step *= 0.5
             if step <= 1e-6:  # no decrease left to resolve in floating point: centred as well as it can be
                 break
-            x = x + step * dx
-        if m * t <= _GAP * max(objective(x), floor):
+            assert inside is not None
+            x, chol, fx = y, inside, fy
+        if m * t <= _GAP * max(fx, floor):
             converged = True
             break
         t *= 0.1

@@ -327,11 +327,11 @@ def analysis_band(
     return min(min(cutoffs), band_hz) if band_hz is not None else min(cutoffs)
 
 
-def _state_cutoffs(records: Sequence[Any], method: str, options: dict[str, Any]) -> list[dict[str, Any]]:
+def _state_cutoffs(records: Sequence[_Record]) -> list[dict[str, Any]]:
     """Per record (training, then validation; two blocks of one file are two records): its `source` and the
-    `cutoff_hz` [Hz] its states were filtered at (`state_cutoff_hz`: the one asked for, or the one derived from
-    its excitation; None for exact states)."""
-    return [{"source": str(r.data.source), "cutoff_hz": state_cutoff_hz(r.data, method, **options)} for r in records]
+    `cutoff_hz` [Hz] its states were filtered at, as its signals carry it (`_records`: the one asked for, or the one
+    derived from its excitation; None for exact states)."""
+    return [{"source": str(r.data.source), "cutoff_hz": r.signals.state_hz[0][1]} for r in records]
 
 
 def _records(
@@ -975,7 +975,7 @@ def diagnose(
             "derivatives": {
                 "method": derivatives,
                 **options,
-                "cutoff_by_record": _state_cutoffs([*tr, *va], derivatives, options),
+                "cutoff_by_record": _state_cutoffs([*tr, *va]),
             },
             "window_s": window_s,
             "simulation_windows": {
