@@ -25,7 +25,8 @@
    (`mujoco_only`: `qfrc_inverse`, without the actuators' gain and bias or the file's `sysid_*` custom
    numerics). A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
    found on that file): the encoders are zeroed wherever each file began, and what a model loses with it known
-   is not the zero.
+   is not the zero. `moving` judges each joint only on the rows where it moves (`_moving_rows`): where it rests
+   or turns round its inverse dynamics is a set within +-Fc, not a value.
 3. **What the shared files allow** (`lab_form`): the lab's own model form (`authors.author_regressor`: rigid
    body, rotor inertia through the gear, viscous and atan Coulomb friction) refitted by least squares in the
    judging band, on the same states as the judge, (a) on the other files of the split and (b) on all of the
@@ -78,6 +79,7 @@ from identify.derivatives import States, derive_states
 from identify.diagnose import SelectionOptions, author_torque, diagnose, load_author_model, with_found_lead
 from identify.diagnose.authors import author_regressor
 from identify.diagnose.calibrate import mjcf_measured_torque
+from identify.diagnose.diagnosis import SLIDING_FRACTION
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parents[1] / "shared" / "data"
@@ -148,22 +150,18 @@ def judge(
     ramps: tuple[float, ...] = (),
     *,
     angle_zero: bool = False,
-) -> tuple[
-    dict[str, list[float]],
-    dict[str, list[float]],
-    dict[str, list[float]],
-    dict[str, list[list[float]]],
-    dict[str, list[float]],
-]:
-    """Per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band, in its two readings: each model
-    evaluated unfiltered on the filtered states, and its torque low-passed as well (both sides filtered, as the
-    diagnosis fits); third, the first reading's error with its own mean over the file taken out (what is left
-    once a torque zero of the file's own is allowed); fourth, with `angle_zero` (else empty), the first reading
-    with the file's own angle zero given to each model (`_angle_zeroed`): per model [RMS, shift]; fifth, the first
-    reading with the calibrated MJCF's joint torque from MuJoCo's `mj_inverse` alone (`inverse_dynamics`:
-    `qfrc_inverse`, without the actuators' gain and bias or the file's `sysid_*` custom numerics: no torque sensor
-    offset or gain, delay or custom friction law). `ramps`: also the calibrated model with its friction `widened` to
-    each of these widths [rad/s] (`calibrated_ramp_<width>`), in the first two readings."""
+) -> dict[str, dict[str, Any]]:
+    """Per reading, per model: (nv,) torque RMS [N m] on `data` in the 5 Hz judging band. `torque_rms`: each model
+    evaluated unfiltered on the filtered states; `both_filtered`: its torque low-passed as well (as the diagnosis
+    fits); `demeaned`: the first reading's error with its own mean over the file taken out (what is left once a
+    torque zero of the file's own is allowed); `angle_zeroed`, with `angle_zero` (else empty): the first reading
+    with the file's own angle zero given to each model (`_angle_zeroed`), per model [RMS, shift]; `mujoco_only`:
+    the first reading with the calibrated MJCF's joint torque from MuJoCo's `mj_inverse` alone
+    (`inverse_dynamics`: `qfrc_inverse`, without the actuators' gain and bias or the file's `sysid_*` custom
+    numerics: no torque sensor offset or gain, delay or custom friction law); `moving`: the first reading on each
+    joint's `_moving_rows` only (plus `moving_share`, (nv,) the share of the rows each joint keeps). `ramps`: also
+    the calibrated model with its friction `widened` to each of these widths [rad/s] (`calibrated_ramp_<width>`),
+    in the first two readings."""
     states, measured = _judged_states(data)
     rows, fs = states.valid, 1.0 / data.dt
     model = mujoco.MjModel.from_xml_path(str(xml_path))
@@ -182,12 +180,32 @@ def judge(
     def rms(pred: dict[str, np.ndarray]) -> dict[str, list[float]]:
         return {k: np.sqrt(np.mean((measured - v[rows]) ** 2, axis=0)).tolist() for k, v in pred.items()}
 
-    demeaned = {k: np.std(measured - v[rows], axis=0).tolist() for k, v in preds.items()}
     native = {
         **{k: v for k, v in preds.items() if k in authors},
         "calibrated": inverse_dynamics(model, states.q, states.dq, states.ddq),
     }
-    return rms(preds), rms({k: _lowpass(v, fs) for k, v in preds.items()}), demeaned, zeroed, rms(native)
+    moving = _moving_rows(states.dq[rows])
+    return {
+        "torque_rms": rms(preds),
+        "both_filtered": rms({k: _lowpass(v, fs) for k, v in preds.items()}),
+        "demeaned": {k: np.std(measured - v[rows], axis=0).tolist() for k, v in preds.items()},
+        "angle_zeroed": zeroed,
+        "mujoco_only": rms(native),
+        "moving": {
+            k: [float(np.sqrt(np.mean((measured[m, j] - v[rows][m, j]) ** 2))) for j, m in enumerate(moving.T)]
+            for k, v in preds.items()
+            if k in authors or k == "calibrated"
+        },
+        "moving_share": moving.mean(axis=0).tolist(),
+    }
+
+
+def _moving_rows(dq: np.ndarray) -> np.ndarray:
+    """(N, nv) True where a joint moves faster than `SLIDING_FRACTION` of its RMS speed in the file (the
+    diagnosis's own rule, `identify.diagnose.diagnosis._slow_rows`). Slower, it rests or turns round: its friction
+    is anywhere within +-Fc and the inverse dynamics is a set, not a value; on a joint commanded zero torque the
+    drive's current-based torque is 0 there whatever holds the link."""
+    return np.abs(dq) > SLIDING_FRACTION * np.sqrt(np.mean(dq**2, axis=0))
 
 
 def lab_form(datasets: list[Dataset], p: dict[str, float]) -> dict[str, list[list[float]]]:
@@ -266,7 +284,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"
             path.write_text(dg.calibrated_xml)
-            return judge(path, {}, held)[0]["calibrated"]
+            return judge(path, {}, held)["torque_rms"]["calibrated"]
 
     in_sample = run(datasets, datasets[:1])  # the diagnosis fitted on every file: its in-sample bound
     calibrated_all = [judged_on(in_sample, d) for d in datasets]
@@ -278,8 +296,9 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "calibrated.xml"
             path.write_text(dg.calibrated_xml)
-            rms, both, demeaned, zeroed, mujoco_only = judge(path, authors, held, RAMPS, angle_zero=True)
-        rms["nominal"] = judge(nominal_xml, {}, held)[0]["calibrated"]
+            judged = judge(path, authors, held, RAMPS, angle_zero=True)
+        rms, both, zeroed = judged["torque_rms"], judged["both_filtered"], judged["angle_zeroed"]
+        rms["nominal"] = judge(nominal_xml, {}, held)["torque_rms"]["calibrated"]
         rms["lab_form_others"], rms["lab_form_all"] = refit["others"][k], refit["all"][k]
         rms["lab_form_self"] = refit["self"][k]
         rms["calibrated_all"] = calibrated_all[k]
@@ -292,8 +311,10 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
                 "best_authors": best.tolist(),
                 "wins": _at_most(rms["calibrated"], best),
                 "both_filtered": both,
-                "mujoco_only": mujoco_only,
-                "demeaned": {k: v for k, v in demeaned.items() if k == "calibrated" or k in authors},
+                "mujoco_only": judged["mujoco_only"],
+                "moving": judged["moving"],
+                "moving_share": judged["moving_share"],
+                "demeaned": {k: v for k, v in judged["demeaned"].items() if k == "calibrated" or k in authors},
                 "angle_zeroed": {k: v[0] for k, v in zeroed.items()},
                 "angle_zero_shift": {k: v[1] for k, v in zeroed.items()},
                 "wins_both_filtered": _at_most(both["calibrated"], np.min([both[a] for a in authors], axis=0)),
@@ -341,20 +362,28 @@ def _yes_no(flags: list[bool]) -> str:
 
 def _reading_markdown(table: dict[str, Any], key: str, intro: str) -> list[str]:
     """The splits of `table` in another reading `key` of each split (per model, (nv,) RMS): the calibrated model and
-    the lab's, and whether the calibrated one is at most the best of the lab's on each joint."""
+    the lab's, and whether the calibrated one is at most the best of the lab's on each joint; where the splits
+    carry `<key>_share` ((nv,) the share of the rows the reading keeps), a column with it."""
     a = table["authors"]
+    share = all(f"{key}_share" in s for s in table["splits"])
     lines = [
         "",
         f"The same splits of {table['session']} with {intro}:",
         "",
-        "| held out | calibrated | " + " | ".join(a) + " | calibrated <= best lab model |",
-        "|" + "---|" * (3 + len(a)),
+        "| held out | calibrated | "
+        + " | ".join(a)
+        + " | calibrated <= best lab model |"
+        + (" rows kept |" if share else ""),
+        "|" + "---|" * (3 + len(a) + share),
     ]
     for s in table["splits"]:
         r = s[key]
         cells = [f"{r[m][0]:.4f} / {r[m][1]:.4f}" for m in ("calibrated", *a)]
         best = np.min([r[m] for m in a], axis=0)
-        lines.append(f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(_at_most(r['calibrated'], best))} |")
+        kept = " " + " / ".join(f"{x:.0%}" for x in s[f"{key}_share"]) + " |" if share else ""
+        lines.append(
+            f"| {s['held_out']} | " + " | ".join(cells) + f" | {_yes_no(_at_most(r['calibrated'], best))} |" + kept
+        )
     return lines
 
 
@@ -395,6 +424,13 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
             "each model given the held-out file's own angle zero (the constant shift of its angles that fits that "
             "model best, found on the file itself; `angle_zero_shift` in the JSON): what is left once the file's "
             "encoder zero is known, which no model fitted on other files can know",
+        ),
+        (
+            "moving",
+            "each joint judged only on the rows where it moves faster than a tenth of its RMS speed in the file "
+            "(`_moving_rows`, the diagnosis's own slow-row rule): slower, it rests or turns round, its friction is "
+            "anywhere within +-Fc and the inverse dynamics is a set, not a value; on a joint commanded zero torque "
+            "the drive's current-based torque is 0 there whatever holds the link",
         ),
     ):
         if all(key in s for s in table["splits"]):
@@ -449,7 +485,8 @@ def _lofo_markdown(table: dict[str, Any]) -> str:
 
 
 def _totals(tables: dict[str, dict[str, Any]], reading: str, model: str) -> tuple[float, int, int, int]:
-    """Over every split of `tables`, in `reading` (`torque_rms`, `both_filtered`, `mujoco_only` or `angle_zeroed`):
+    """Over every split of `tables`, in `reading` (`torque_rms`, `both_filtered`, `mujoco_only`, `angle_zeroed` or
+    `moving`):
     the sum of `model`'s held-out RMS over the joints, the joints and the splits (every joint) where it is at most
     the best lab model, and the number of joints."""
     total, joints, splits, n = 0.0, 0, 0, 0
@@ -472,7 +509,7 @@ def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
     n_splits = sum(len(t["splits"]) for t in tables.values())
     lines = []
     every = [s for t in tables.values() for s in t["splits"]]
-    for reading in ("torque_rms", "both_filtered", "mujoco_only", "angle_zeroed"):
+    for reading in ("torque_rms", "both_filtered", "mujoco_only", "angle_zeroed", "moving"):
         if not all(reading in s for s in every):
             continue  # tables from before the reading was judged
         total, joints, splits, n = _totals(tables, reading, "calibrated")

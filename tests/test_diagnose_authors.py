@@ -187,7 +187,7 @@ def test_a_bad_reference_model_file_is_one_line_naming_the_file_and_the_key(
 
 
 def test_the_mujoco_only_reading_leaves_out_what_mujoco_has_no_attribute_for(tmp_path: Path) -> None:
-    """`bench.diagnose.judge`'s fifth reading (`mujoco_only`): the calibrated MJCF through `mj_inverse` alone, as a
+    """`bench.diagnose.judge`'s `mujoco_only` reading: the calibrated MJCF through `mj_inverse` alone, as a
     MuJoCo user without this harness reads the file. A torque sensor offset of 0.05 N m on the shoulder, written as
     the harness's `sysid_torque_sensor_shoulder` numeric, is in the first reading and not in this one: there the
     shoulder is off by the offset, the elbow the same in both."""
@@ -208,7 +208,39 @@ def test_the_mujoco_only_reading_leaves_out_what_mujoco_has_no_attribute_for(tmp
     numeric = '<custom><numeric name="sysid_torque_sensor_shoulder" size="2" data="1 0.05"/></custom>\n</mujoco>'
     path = tmp_path / "offset.xml"
     path.write_text(text[: text.rindex("</mujoco>")] + numeric)
-    rms, _, _, _, mujoco_only = judge(path, {}, data)
+    judged = judge(path, {}, data)
+    rms, mujoco_only = judged["torque_rms"], judged["mujoco_only"]
     assert rms["calibrated"][0] < 0.005 and rms["calibrated"][1] < 0.005, rms
     assert mujoco_only["calibrated"][0] == pytest.approx(0.05, abs=0.005)
     assert mujoco_only["calibrated"][1] == pytest.approx(rms["calibrated"][1], abs=1e-9)
+
+
+def test_the_moving_reading_leaves_out_the_rows_where_a_joint_rests() -> None:
+    """`bench.diagnose.judge`'s `moving` reading: each joint judged only where it moves faster than a tenth of its
+    RMS speed. The elbow swings for 4.25 s, then rests at its peak while the shoulder keeps swinging, and from
+    4.45 s its measured torque is 0 (a joint commanded zero torque, held by its friction: the drive's current
+    shows nothing). The exact model misses there by the holding torque; on the moving rows it is exact, and the
+    reading says what share of the rows it kept."""
+    from bench.diagnose import judge
+    from dynamics.plant import load_plant
+    from dynamics.torque import inverse_dynamics
+    from envs.dataset import Dataset
+
+    plant = load_plant("two_link")
+    t = np.arange(0.0, 8.0, 0.002)
+    w = 2 * np.pi * np.array([0.4, 1.0])
+    stop = 4.25  # the elbow's fifth peak: w[1] * stop = pi / 2 + 8 pi, its speed zero there
+    moving = t < stop
+    q = np.column_stack([0.6 * np.sin(w[0] * t), 0.9 * np.sin(w[1] * np.minimum(t, stop))])
+    dq = np.column_stack([0.6 * w[0] * np.cos(w[0] * t), np.where(moving, 0.9 * w[1] * np.cos(w[1] * t), 0.0)])
+    ddq = np.column_stack(
+        [-0.6 * w[0] ** 2 * np.sin(w[0] * t), np.where(moving, -0.9 * w[1] ** 2 * np.sin(w[1] * t), 0.0)]
+    )
+    tau = inverse_dynamics(plant, q, dq, ddq)
+    tau[t >= stop + 0.2, 1] = 0.0
+    judged = judge(Path(plant.path), {}, Dataset(t, q, tau, plant.joint_names, np.ones(2, bool)))
+    every, kept = judged["torque_rms"]["calibrated"], judged["moving"]["calibrated"]
+    assert every[1] > 0.3, every  # the link's weight held at 0.9 rad, in half of the file
+    assert kept[1] < 0.01 and kept[0] == pytest.approx(every[0], abs=0.005), (kept, every)
+    share = judged["moving_share"]
+    assert share[0] > 0.85 and 0.4 < share[1] < stop / t[-1], share  # the elbow's rest and its turns left out

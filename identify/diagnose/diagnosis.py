@@ -683,7 +683,8 @@ def diagnose(
         selection: thresholds of the selection.
         window_s: re-start window of the simulation error [s].
         max_windows: the simulation error's windows at most (all validation records together, shared by
-            duration): a longer log simulates that many, spread evenly over it (`simulation_error`); None: every window.
+            duration, one at least per record, so more records than this simulate one each): a longer log
+            simulates that many, spread evenly over it (`simulation_error`); None: every window.
         references: other models to evaluate on the validation records (e.g. the authors' identified ones).
         band_hz: parallel low-pass of measured and model torques before they are compared (see `Signals`);
             never above the derivative filter's cut-off, which is the band where it is None (`analysis_band`).
