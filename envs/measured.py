@@ -1,8 +1,8 @@
 """Measured joint data from CSV files: column mapping, input checks and repairs.
 
 `read_measured` reads one CSV with a header row (the measured-data format of DESIGN.md, or any other layout
-through a column mapping) into a `Dataset` of a plant's joints. The file may be gzip-compressed, UTF-8 (with or
-without a byte-order mark), UTF-16 or UTF-32 text, with any line ends; cells may be quoted, and the columns not
+through a column mapping) into a `Dataset` of a plant's joints. The file may be gzip-compressed, UTF-8 or UTF-16
+(with or without a byte-order mark) or UTF-32 text, with any line ends; cells may be quoted, and the columns not
 used are not converted (they may hold text). Every message names the file, the column (the file's name, then
 ours) and the row: `row k` counts data rows from 0, `line` is the line of the file (the header is line 1).
 Nothing questionable reaches a fit silently:
@@ -60,10 +60,12 @@ _SPIKE_WINDOW = 4 * _GLITCH_MAX_RUN + 1  # running median [samples] a torque spi
 _SPIKE_FACTOR = 10.0  # a torque spike departs from it by 10 x the column's 99th-percentile excursion
 _MIN_JUMP = 0.02  # [rad] (or [m]) a step smaller than this is never called a jump
 _DEGREE = np.pi / 180.0
+_MILLIMETRE = 1e-3  # [m]
 _MIN_SAMPLE_RATE_HZ = 5.0  # slower sampling is a time column in other units (ms, us) or not joint data
 _MAX_SAMPLE_RATE_HZ = 1e5
 _RATE_WINDOW = 2 * _GLITCH_MAX_RUN + 1  # steps in the running median that bounds the speed without dq
 _SNIFF_BYTES = 1 << 16
+_UTF16_SNIFF_BYTES = 1024  # UTF-16 without a byte-order mark is told by its NULs over this many first bytes
 _GZIP_MAGIC = b"\x1f\x8b"
 _GZIP_ERRORS = (EOFError, gzip.BadGzipFile, zlib.error)
 _ENCODINGS = (  # byte-order mark, its codec without the mark, the codec that reads the file (and skips it)
@@ -72,6 +74,11 @@ _ENCODINGS = (  # byte-order mark, its codec without the mark, the codec that re
     (codecs.BOM_UTF16_LE, "utf-16-le", "utf-16"),
     (codecs.BOM_UTF16_BE, "utf-16-be", "utf-16"),
     (codecs.BOM_UTF8, "utf-8", "utf-8-sig"),
+)
+_MARKUP = (  # a tag in the first 64 KiB of a file that begins with '<': what the file is
+    ("<mujoco", "XML, a MuJoCo model (MJCF)"),
+    ("<robot", "XML, a URDF robot model"),
+    ("<html", "HTML, a web page"),
 )
 _BLOCK_ROWS = 200_000  # rows read at a time: a block of a wide file is a few tens of MB
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
@@ -268,6 +275,8 @@ def read_many(
     twice = sorted({str(p) for p in seen if seen.count(p) > 1})
     if twice:
         raise DataError(f"file(s) listed more than once (a file cannot be both fitted and validated on): {twice}")
+    if len(items) > 1:  # a mapping that does not fit the plant is named once, not once per file
+        _mapping_specs(plant, columns, f"data.columns (shared by all {len(items)} files)")
     datasets, errors = [], []
     for p in items:
         try:
@@ -283,9 +292,9 @@ def read_many(
                 )
             )
         except DataError as err:
-            errors.append(str(err))
+            errors.append((str(Path(p)), str(err)))
     if errors:
-        raise DataError("\n".join(errors))
+        raise DataError(_join_errors(errors))
     first: dict[str, Path] = {}  # among files that read: two empty ones are refused for what they are
     for path, data in zip(seen, datasets, strict=True):
         # the samples read, not the bytes: a gzip copy, other line endings or another number format are copies too
@@ -299,13 +308,31 @@ def read_many(
     return datasets
 
 
+def _join_errors(errors: list[tuple[str, str]]) -> str:
+    """One line per problem, in the order given: files whose messages differ only in the path that begins them
+    (the same header, the same mapping) are named together before the message, once."""
+    grouped: dict[str, list[str]] = {}
+    for path, message in errors:
+        prefix = f"{path}: "
+        key = message[len(prefix) :] if message.startswith(prefix) else "\0" + message  # \0: as it is, alone
+        grouped.setdefault(key, []).append(path)
+    lines = []
+    for key, paths in grouped.items():
+        if key.startswith("\0"):
+            lines += [key[1:]] * len(paths)
+        else:
+            lines.append(f"{paths[0] if len(paths) == 1 else f'{len(paths)} files, ' + ', '.join(paths)}: {key}")
+    return "\n".join(lines)
+
+
 @dataclass(frozen=True)
 class _TextFile:
     """How a data file is read as text: gzip-compressed or not, and its encoding (a Python codec)."""
 
     path: Path
     compressed: bool
-    encoding: str  # utf-8-sig (a byte-order mark or none), utf-16 or utf-32 (after their byte-order mark)
+    encoding: str  # utf-8-sig (a byte-order mark or none), utf-16 or utf-32 (after their byte-order mark), or
+    # utf-16-le / utf-16-be (no mark)
 
     @contextmanager
     def open(self, newline: str | None = "") -> Iterator[TextIO]:
@@ -341,7 +368,8 @@ def _data_digest(data: Dataset) -> str:
 
 def _text_file(path: Path) -> _TextFile:
     """How to read `path` as text: gzip is decompressed, UTF-16 and UTF-32 are decoded after their byte-order
-    mark. Anything else than a readable text file is refused, saying what it is (folder, binary, not UTF-8)."""
+    mark (UTF-16 without one is told by its NUL bytes, `_utf16_without_bom`). Anything else than a readable text
+    file is refused, saying what it is (folder, binary, not UTF-8)."""
     if path.is_dir():
         raise DataError(f"{path}: is a folder, not a file; give the CSV file inside it")
     if not path.exists():
@@ -362,6 +390,8 @@ def _text_file(path: Path) -> _TextFile:
     except OSError as err:
         raise DataError(f"{path}: cannot be read: {err.strerror or err}") from None
     bom, bare, encoding = next((e for e in _ENCODINGS if head.startswith(e[0])), (b"", "utf-8", "utf-8-sig"))
+    if not bom and b"\0" in head:  # UTF-16 saved without its byte-order mark: read in the order its NULs show
+        bare = encoding = _utf16_without_bom(head) or bare
     if bare == "utf-8":  # NUL bytes are text in UTF-16 and UTF-32, in UTF-8 a binary file
         nul = head.find(b"\0")
         if nul >= 0:
@@ -372,6 +402,21 @@ def _text_file(path: Path) -> _TextFile:
     except UnicodeDecodeError as err:
         raise _not_text(path, head, len(bom) + err.start, bare) from None
     return _TextFile(path, compressed, encoding)
+
+
+def _utf16_without_bom(head: bytes) -> str | None:
+    """`utf-16-le` or `utf-16-be` when the first bytes are text of U+0001-U+00FF (CSV's own characters) in UTF-16
+    without a byte-order mark: a NUL at every odd byte (little-endian) or every even one (big-endian), and none
+    between them; None otherwise (a binary file)."""
+    sample = head[: min(len(head), _UTF16_SNIFF_BYTES) // 2 * 2]
+    if len(sample) < 4:
+        return None
+    even, odd = sample[0::2], sample[1::2]
+    if not odd.strip(b"\0") and b"\0" not in even:
+        return "utf-16-le"
+    if not even.strip(b"\0") and b"\0" not in odd:
+        return "utf-16-be"
+    return None
 
 
 def _bad_gzip(path: Path, err: Exception) -> DataError:
@@ -392,7 +437,14 @@ def _read_header(file: _TextFile) -> tuple[list[str], str]:
     path = file.path
     with file.open() as f:
         first = f.readline()
-        rest = f.read(1 << 16) if not first.strip() else ""
+        rest = f.read(1 << 16) if not first.strip() or first.lstrip().startswith("<") else ""
+    start = (first + rest).lstrip()
+    if start.startswith("<"):  # a model or a web page, not a table: "separated by spaces" would mislead
+        kind = next((k for tag, k in _MARKUP if tag in start.lower()), "XML or HTML (markup)")
+        raise DataError(
+            f"{path}: not CSV but {kind}: it begins with {start.splitlines()[0][:40]!r}; data.path takes CSV logs "
+            "(a model is given as system.mjcf)"
+        )
     if not first.strip():
         if rest.strip():
             raise DataError(
@@ -613,14 +665,7 @@ def _resolve_columns(
     targets = _targets(plant)
     where = {h: i for i, h in enumerate(header)}
     listing = f"its columns are: {', '.join(header)}"
-    spec: dict[str, tuple[str, float, float]] = {}
-    for key, value in (columns or {}).items():
-        if key not in targets:
-            raise DataError(
-                f"{src}: unknown name {key!r} in the column mapping; for {plant.name} the names are: "
-                f"{', '.join(targets)}"
-            )
-        spec[str(key)] = _column_spec(key, value, src)
+    spec = _mapping_specs(plant, columns, src)
     for key in targets:
         if key not in spec and key in where:
             spec[key] = (key, 1.0, 0.0)
@@ -661,6 +706,23 @@ def _resolve_columns(
                 f"a typo, or data of another system?"
             )
     return out, ignored
+
+
+def _mapping_specs(plant: Plant, columns: Mapping[str, Any] | None, src: str) -> dict[str, tuple[str, float, float]]:
+    """The column mapping checked against `plant` (whatever the file): ours -> (the file's column, scale, offset).
+
+    Raises:
+        DataError: a name that is not one of `plant`'s, or a value that is not a column name or
+            `{column, scale, offset}`; `src` begins the message.
+    """
+    targets = _targets(plant)
+    unknown = [repr(k) for k in columns or {} if k not in targets]
+    if unknown:
+        raise DataError(
+            f"{src}: unknown name{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} in the column mapping; for "
+            f"{plant.name} the names are: {', '.join(targets)} (a typo, or a mapping for another system?)"
+        )
+    return {str(key): _column_spec(key, value, src) for key, value in (columns or {}).items()}
 
 
 def _scaled(x: np.ndarray, c: _Column) -> np.ndarray:
@@ -705,7 +767,7 @@ def _check_finite(values: dict[str, np.ndarray], labels: dict[str, str], src: st
 
 def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
     steps = np.diff(t)
-    _check_time_unit(float(np.median(steps)), column, label, src)
+    _check_time_unit(t, float(np.median(steps)), column, label, src)
     back = np.flatnonzero(steps < 0)
     same = np.flatnonzero(steps == 0)
     if back.size and (not same.size or back[0] < same[0]):
@@ -722,11 +784,17 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
         )
 
 
-def _check_time_unit(step: float, column: _Column, label: str, src: str) -> None:
-    """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is. The hint
-    gives the mapping as a command-line override."""
+def _check_time_unit(t: np.ndarray, step: float, column: _Column, label: str, src: str) -> None:
+    """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is, and so is
+    a sample index (0, 1, 2, ...). The hint gives the mapping as a command-line override."""
     if not step > 0 or 1.0 / step >= _MIN_SAMPLE_RATE_HZ:
         return
+    if step == 1.0 and t[0] == np.round(t[0]) and np.all(np.diff(t) == 1.0):
+        raise DataError(
+            f"{src}: {label} counts {', '.join(f'{v:.0f}' for v in t[:3])}, ... (consecutive integers on all {len(t)} "
+            "rows): a sample index or counter, not a time in seconds; give the time in seconds as data.columns.time, "
+            f"or scale the counter by the sampling period, e.g. at 500 Hz {_mapping_hint(column, 'time', 0.002)}"
+        )
     guesses = [(unit, f) for unit, f in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))]
     likely = [(unit, f) for unit, f in guesses if _MIN_SAMPLE_RATE_HZ <= 1.0 / (step * f) <= _MAX_SAMPLE_RATE_HZ]
     hint = "; the harness expects time in seconds"
@@ -900,12 +968,15 @@ def _fit_joint_ranges(
             continue
         k = int(bad[np.argmax(np.maximum(lo - x[bad], x[bad] - hi))])
         unit_name = "rad" if plant.hinge[j] else "m"
-        degrees = plant.hinge[j] and lo <= float(x.min()) * _DEGREE and float(x.max()) * _DEGREE <= hi
+        # an angle in degrees, a slide's position in millimetres: inside the range once converted
+        guess, factor = ("degrees", _DEGREE) if plant.hinge[j] else ("millimetres", _MILLIMETRE)
+        converts = lo <= float(x.min()) * factor and float(x.max()) * factor <= hi
         why = (
             f"it fits {turns[0]:+d} whole turn(s) over; not repaired (repair=False)"
             if turns
-            else "widen the joint's range in the MJCF, or correct the angle's zero with an offset in the column mapping"
-            + (f"; read as degrees it lies inside the range: if it is, give the scale {_DEGREE:.6g}" if degrees else "")
+            else f"widen the joint's range in the MJCF, or correct the {'angle' if plant.hinge[j] else 'position'}'s "
+            "zero with an offset in the column mapping"
+            + (f"; read as {guess} it lies inside the range: if it is, give the scale {factor:.6g}" if converts else "")
         )
         raise DataError(
             f"{src}: {label} leaves the joint range [{lo:.4g}, {hi:.4g}] {unit_name} of {plant.name} by more than "

@@ -185,6 +185,25 @@ def test_malformed_files_are_refused(tmp_path: Path, plant: Plant, text: str | N
         read_measured(path, plant)
 
 
+@pytest.mark.parametrize(
+    ("text", "kind"),
+    [
+        ('\ufeff\n  <mujoco model="arm">\n  <worldbody/>\n</mujoco>\n', r"XML, a MuJoCo model \(MJCF\): it begins "),
+        ('<?xml version="1.0"?>\n<robot name="arm">\n</robot>\n', r"XML, a URDF robot model: it begins with '<\?xml"),
+        ("<data a='1'>\n</data>\n", r"XML or HTML \(markup\): it begins with"),
+    ],
+)
+def test_a_model_or_other_markup_file_given_as_data_is_named(
+    tmp_path: Path, plant: Plant, text: str, kind: str
+) -> None:
+    """An MJCF given as data.path was called 'separated by spaces' (its first line, one column of words)."""
+    path = tmp_path / "model.xml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(DataError, match=rf"model\.xml: not CSV but {kind}.*data\.path takes CSV logs") as err:
+        read_measured(path, plant)
+    assert "spaces" not in str(err.value) and "\n" not in str(err.value)
+
+
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
 def test_nan_and_inf_are_located(tmp_path: Path, plant: Plant, value: float) -> None:
     cols = table()
@@ -589,6 +608,27 @@ def test_read_many_reports_every_bad_file(tmp_path: Path, plant: Plant) -> None:
     read_many([good, write(tmp_path / "other.csv", table(amplitude=(0.4, 0.7)))], plant)  # other data: accepted
 
 
+def test_a_mapping_or_problem_shared_by_every_file_is_reported_once(tmp_path: Path, plant: Plant) -> None:
+    """A data config's mapping for another system (system=pendulum data=dfki_double_pendulum_c1) repeated 'unknown
+    name' once per file in the one line of the error."""
+    pendulum = load_plant("pendulum")
+    paths = [write(tmp_path / f"log{k}.csv", table()) for k in range(3)]
+    with pytest.raises(DataError) as err:
+        read_many(paths, pendulum, columns={"q_shoulder": "q_shoulder", "tau_shoulder": "tau_shoulder"})
+    message = str(err.value)
+    assert message.startswith(
+        "data.columns (shared by all 3 files): unknown names 'q_shoulder', 'tau_shoulder' in the column mapping; "
+        "for pendulum the names are: time, q_swing,"
+    )
+    assert message.count("unknown") == 1 and "log0.csv" not in message and "\n" not in message
+    # a problem of each file's own that reads the same in all (the same header) is named once, with the files
+    with pytest.raises(DataError) as err:
+        read_many(paths, pendulum)
+    message = str(err.value)
+    assert message.startswith(f"3 files, {paths[0]}, {paths[1]}, {paths[2]}: missing column(s) q_swing, tau_swing")
+    assert message.count("missing") == 1 and "\n" not in message
+
+
 def test_dfki_logs_read_through_the_data_config(shared_data: Path, plant: Plant, monkeypatch) -> None:
     monkeypatch.setitem(os.environ, "SYSID_DATA_DIR", str(shared_data))
     cfg = OmegaConf.load(CONF_DATA / "dfki_double_pendulum.yaml")
@@ -692,6 +732,22 @@ def test_a_clock_time_mapped_to_time_asks_for_seconds(tmp_path: Path, plant: Pla
         read_measured(path, plant, columns={"time": "stamp"})
 
 
+def test_a_sample_index_as_time_is_named_with_the_scale_that_reads_it(tmp_path: Path, plant: Plant) -> None:
+    """A time column 0, 1, 2, ... was taken for milliseconds ('1000 Hz then'): it is a counter of samples."""
+    cols = table()
+    cols["time"] = np.arange(1000.0)
+    path = write(tmp_path / "index.csv", cols)
+    with pytest.raises(
+        DataError,
+        match=r"index\.csv: column 'time' counts 0, 1, 2, \.\.\. \(consecutive integers on all 1000 rows\): a "
+        r"sample index or counter, not a time in seconds; .*\{column: \"time\", scale: 0\.002\} as data\.columns\.time",
+    ) as err:
+        read_measured(path, plant)
+    assert "milliseconds" not in str(err.value)
+    data = read_measured(path, plant, columns={"time": {"column": "time", "scale": 0.002}})
+    assert data.meta["sample_rate_hz"] == pytest.approx(FS)
+
+
 def test_quoted_cells_are_read(tmp_path: Path, plant: Plant) -> None:
     """pandas' QUOTE_ALL quotes every cell, numbers too; a quoted text cell may hold the delimiter."""
     cols = table()
@@ -757,6 +813,23 @@ def test_gzip_and_utf16_files_are_read(tmp_path: Path, plant: Plant, form: str) 
     data = read_measured(path, plant)
     np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
     np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])
+
+
+@pytest.mark.parametrize("encoding", ["utf-16-le", "utf-16-be"])
+def test_utf16_without_a_byte_order_mark_is_read(tmp_path: Path, plant: Plant, encoding: str) -> None:
+    """UTF-16 saved without its byte-order mark was refused as 'a binary file (a NUL byte at byte 1)'; its NULs
+    at every odd (little-endian) or even (big-endian) byte tell its order."""
+    cols = table()
+    text = write(tmp_path / "plain.csv", cols).read_text()
+    path = tmp_path / "bare.csv"
+    path.write_bytes(text.encode(encoding))
+    data = read_measured(path, plant)
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])
+    # a binary file is still refused as one: its NULs fall on both kinds of byte
+    path.write_bytes(text.encode("utf-8")[:100] + bytes(range(256)) * 8)
+    with pytest.raises(DataError, match=r"bare\.csv: a binary file \(a NUL byte at byte 100"):
+        read_measured(path, plant)
 
 
 def test_a_cut_gzip_file_is_named(tmp_path: Path, plant: Plant) -> None:
@@ -911,3 +984,30 @@ def test_an_angle_far_outside_the_joint_range_is_refused_and_one_pressed_into_it
     data = read_measured(write(tmp_path / "stop.csv", cols), pendulum)
     assert not data.meta["repairs"]
     np.testing.assert_allclose(data.q[:, 0], cols["q_swing"], atol=1e-12)
+
+
+def test_a_slide_logged_in_millimetres_is_refused_with_the_scale_that_reads_it(tmp_path: Path) -> None:
+    """A slide's position in mm left its range with only 'widen the range, or correct the zero'; the hint for an
+    angle in degrees had no counterpart for millimetres."""
+    model = tmp_path / "slide.xml"
+    model.write_text(
+        '<mujoco><compiler angle="radian"/><worldbody><body name="a" pos="0 0 1">'
+        '<joint name="j1" axis="0 1 0" range="-2 2" limited="true"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.5"/><body name="b" pos="0 0 -0.3">'
+        '<joint name="j2" type="slide" axis="1 0 0" range="-0.1 0.1" limited="true"/><geom type="capsule" '
+        'fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.3"/></body></body></worldbody><actuator><motor joint="j1"/>'
+        '<motor joint="j2"/></actuator></mujoco>'
+    )
+    slide = load_plant(model)
+    t = np.arange(1000) / FS
+    x = 0.08 * np.sin(2 * np.pi * 0.7 * t)  # [m]
+    cols = {"time": t, "q_j1": 0.5 * np.sin(2 * np.pi * t), "q_j2": 1e3 * x, "tau_j1": np.sin(t), "tau_j2": np.cos(t)}
+    path = write(tmp_path / "mm.csv", cols)
+    with pytest.raises(
+        DataError,
+        match=r"mm\.csv: column 'q_j2' leaves the joint range \[-0\.1, 0\.1\] m .* correct the position's zero .*; "
+        r"read as millimetres it lies inside the range: if it is, give the scale 0\.001$",
+    ):
+        read_measured(path, slide)
+    data = read_measured(path, slide, columns={"q_j2": {"column": "q_j2", "scale": 0.001}})
+    np.testing.assert_allclose(data.q[:, 1], x, atol=1e-12)
