@@ -29,7 +29,7 @@ from dynamics.friction import applied_friction_parameters, friction_enabled, fri
 from dynamics.inertia import from_mass_com_inertia, transform_parameters
 from dynamics.sampling import random_states
 from dynamics.stepping import Stepping
-from dynamics.urdf import URDF_SUFFIXES, urdf_as_mjcf_file
+from dynamics.urdf import URDF_SUFFIXES, is_urdf, urdf_as_mjcf_file
 
 __all__ = [
     "INERTIAL_SYMBOLS",
@@ -238,7 +238,7 @@ def load_plant(system: str | Path) -> Plant:
             MuJoCo and Pinocchio disagree on its dynamics.
     """
     source = mjcf_path(str(system))
-    path = urdf_as_mjcf_file(source) if source.suffix.lower() in URDF_SUFFIXES else source
+    path = urdf_as_mjcf_file(source) if is_urdf(source) else source
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:

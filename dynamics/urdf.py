@@ -20,9 +20,24 @@ import numpy as np
 
 from dynamics.errors import ModelError, one_line
 
-__all__ = ["URDF_SUFFIXES", "mjcf_from_urdf", "urdf_as_mjcf_file", "urdf_velocity_limits"]
+__all__ = ["URDF_SUFFIXES", "is_urdf", "mjcf_from_urdf", "urdf_as_mjcf_file", "urdf_velocity_limits"]
 
 URDF_SUFFIXES = (".urdf",)
+
+
+def is_urdf(path: Path) -> bool:
+    """Whether `path` is a URDF: named `.urdf`, or any other file whose root element is `<robot>` (a URDF saved
+    as `.xml`, which MuJoCo would compile without the actuators `mjcf_from_urdf` adds at its effort limits).
+    The root element decides, before any fault further on (which the URDF reader then names); a file that does
+    not begin as XML is not one."""
+    if path.suffix.lower() in URDF_SUFFIXES:
+        return True
+    try:
+        for _, element in ET.iterparse(path, events=("start",)):
+            return element.tag == "robot"
+    except (ET.ParseError, OSError):
+        return False
+    return False
 
 
 def _stripped(path: Path) -> ET.Element:

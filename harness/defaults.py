@@ -23,7 +23,7 @@ from omegaconf import DictConfig, OmegaConf
 from dynamics.plant import Plant
 from dynamics.sampling import random_states
 from dynamics.torque import joint_torque
-from dynamics.urdf import URDF_SUFFIXES, urdf_velocity_limits
+from dynamics.urdf import is_urdf, urdf_velocity_limits
 
 __all__ = [
     "DEFAULT_ACCELERATION",
@@ -72,7 +72,7 @@ def _sample_rate(plant: Plant) -> float:
 
 def _velocity(plant: Plant) -> float | list[float]:
     source = plant.source or plant.path
-    if source.suffix.lower() in URDF_SUFFIXES:
+    if is_urdf(source):
         given = urdf_velocity_limits(source)
         if given:
             return [float(given.get(name, DEFAULT_VELOCITY)) for name in plant.joint_names]

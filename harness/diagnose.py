@@ -37,7 +37,7 @@ from envs.measured import read_many
 from envs.split import names_file, split_train_validation
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
-from harness.setup import CONF_DIR, load_system, with_auto_system, with_model_defaults
+from harness.setup import CONF_DIR, load_system, own_config_folder, with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, flag_set_by, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
@@ -93,27 +93,10 @@ def _as_list(raw: Any) -> list[str]:
     return [str(p) for p in (list(raw) if OmegaConf.is_list(raw) or isinstance(raw, list) else [raw])]
 
 
-def _config_folders() -> list[Path]:
-    """The folders configs are read from: Hydra's file search path (with --config-dir), else conf/."""
-    from hydra.core.hydra_config import HydraConfig
-
-    if HydraConfig.initialized():
-        sources = HydraConfig.get().runtime.config_sources
-        return [Path(s.path) for s in sources if s.schema == "file"]
-    return [CONF_DIR]
-
-
 def _data_config_folder(cfg: DictConfig) -> Path | None:
     """The folder of the data config file whose own `path` is the one in use (None: given on the command line)."""
     name = cfg.data.get("name")
-    for folder in _config_folders() if name else []:
-        candidate = folder / "data" / f"{name}.yaml"
-        if not candidate.is_file():
-            continue
-        own = OmegaConf.to_container(OmegaConf.load(candidate), resolve=True).get("path")  # type: ignore[union-attr]
-        if own not in (None, "???") and _as_list(own) == _as_list(cfg.data.path):
-            return candidate.parent
-    return None
+    return own_config_folder("data", str(name), "path", cfg.data.path) if name else None
 
 
 def data_paths(cfg: DictConfig) -> list[Path]:
@@ -277,7 +260,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     cfg = with_model_defaults(cfg, plant)
     previous = _previous_mjcf_names(_output_dir(cfg), plant)
     outputs = ("diagnosis.rrd", *previous, *_mjcf_names(plant.name), "diagnosis.json")
-    with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite)) as folder:
+    try:
+        logs = data_paths(cfg)
+    except DataError:  # raised again where the logs are read, in the claimed folder
+        logs = []
+    inputs = [plant.source or plant.path, *logs]
+    with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite), inputs=inputs) as folder:
         return _run(cfg, plant, folder)
 
 

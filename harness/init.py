@@ -20,6 +20,7 @@ from dynamics.errors import SysIdError
 from dynamics.plant import load_plant
 from harness.defaults import resolve_system
 from harness.setup import CONF_DIR
+from harness.validate import check_driven
 
 __all__ = ["main", "system_config_text"]
 
@@ -37,6 +38,7 @@ def _value(value: object) -> str:
 def system_config_text(model: Path) -> str:
     """The YAML text: the auto config's comments, each null replaced by the model's value."""
     plant = load_plant(model)
+    check_driven(plant)  # the config would name a model sysid-run then refuses
     auto = OmegaConf.load(CONF_DIR / "system" / "auto.yaml")
     auto.mjcf = str(model.resolve())
     resolved = OmegaConf.create(OmegaConf.to_container(resolve_system(auto, plant)[0], resolve=True))  # type: ignore[arg-type]
@@ -72,6 +74,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="where to write it (default: print it)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing file")
     args = parser.parse_args(argv)
+    if args.out is not None and args.out.suffix.lower() not in (".yaml", ".yml") and not args.out.is_dir():
+        print(
+            f"sysid-init: error: --out {args.out}: Hydra reads a system config from a .yaml file "
+            f"(<dir>/system/<name>.yaml); name it {args.out.with_suffix('.yaml').name}",
+            file=sys.stderr,
+        )
+        return 2
     try:
         text = system_config_text(args.model)
     except (SysIdError, ValueError) as err:

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 from omegaconf.errors import OmegaConfBaseException
 
@@ -193,6 +194,9 @@ def run_job(work: Callable[[Any], Any], cfg: Any) -> Any:
 
     hydra_cfg = HydraConfig.get()
     out = Path(hydra_cfg.runtime.output_dir)
+    # MuJoCo's warnings (an unstable simulation) go to the job's log: the code that meets one says it on the one
+    # error line; printed by MuJoCo as well, they came before it on stderr
+    mujoco.set_mju_user_warning(lambda text: _log_to_files(f"MuJoCo: {text}", logging.WARNING))
     if hydra_cfg.mode == RunMode.MULTIRUN:
         from harness.sweep import run_isolated
 

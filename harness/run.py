@@ -222,7 +222,9 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
     cfg = with_model_defaults(cfg, loaded)
     validate_run_config(cfg, loaded)
     out = Path(output_dir) if output_dir is not None else _hydra_output_dir()
-    with claim(out, outputs=OUTPUTS, overwrite=bool(cfg.overwrite)) as folder:
+    # model.xml, a URDF's compiled MJCF, is retired by any run (no other robot's model left beside the results),
+    # except where it is the model this run reads
+    with claim(out, outputs=OUTPUTS, overwrite=bool(cfg.overwrite), inputs=[loaded.source or loaded.path]) as folder:
         return _run(cfg, folder, loaded)
 
 
@@ -331,10 +333,11 @@ def _run(cfg: DictConfig, folder: RunFolder, loaded: Plant) -> dict[str, Any]:
 
 
 def _derived(plant: Plant, base: BaseParameters, est: Estimate) -> list[dict[str, Any]]:
-    if plant.name not in DERIVED:
+    model = Path(plant.path).stem  # the built-in model's, whatever system.name calls it
+    if model not in DERIVED:
         return []
     out = []
-    for name, (c, unit) in DERIVED[plant.name](plant).items():
+    for name, (c, unit) in DERIVED[model](plant).items():
         c_full = np.zeros(base.K.shape[1])
         c_full[: len(c)] = c
         value, std = linear_combination(base, est, c_full)
@@ -402,7 +405,8 @@ def main() -> None:
     sys.argv[1:] = with_auto_system(sys.argv[1:])
     try:
         check_command_line(sys.argv[1:], CONF_DIR, "config")
-        check_output_override(sys.argv[1:], OUTPUTS)
+        # model.xml may be the model an MJCF's run reads (`claim` tells): a finished run is told by its other outputs
+        check_output_override(sys.argv[1:], tuple(n for n in OUTPUTS if n != "model.xml"))
     except (ConfigError, RunFolderError) as err:
         print(f"sysid-run: error: {err}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -73,6 +73,7 @@ class RunFolder:
 
     path: Path
     outputs: tuple[str, ...]
+    inputs: tuple[str, ...] = ()  # files in the folder that this run reads: never retired, never replaced
 
     def retire(self) -> None:
         """Remove the previous outputs (the results file, the last of `outputs`, first) and any failure record."""
@@ -89,6 +90,12 @@ class RunFolder:
         stage = Path(tempfile.mkdtemp(dir=self.path, prefix=STAGING_PREFIX, suffix=".tmp"))
         try:
             yield stage
+            clash = sorted(p.name for p in stage.iterdir() if p.name in self.inputs)
+            if clash:
+                raise RunFolderError(
+                    f"run folder {self.path}: this run would write {clash[0]} over the file it read as its input; "
+                    "copy the input elsewhere or choose another folder"
+                )
             with _signals_held():  # a stop between the retiring and the renames would leave neither old nor new
                 self.retire()
                 results = self.outputs[-1]
@@ -218,7 +225,7 @@ def clean_stale_temporaries(folder: Path) -> list[str]:
 
 
 @contextmanager
-def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool) -> Iterator[RunFolder]:
+def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool, inputs: Sequence[Path] = ()) -> Iterator[RunFolder]:
     """Hold `folder` for one run (see the module docstring); released when the block ends.
 
     Args:
@@ -226,6 +233,10 @@ def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool) -> Iterator[
         outputs: the files the run writes, in writing order; the last one is the results file that marks a
             finished run.
         overwrite: allow replacing the outputs of a finished run.
+        inputs: the files the run reads (its model, its logs). One that lies in `folder` under the name of an
+            output (a model called model.xml, a calibrated MJCF of an earlier diagnosis there) is the user's input,
+            not a finished run's output: it neither counts as one nor is retired, and a run that would write
+            over it is refused before anything is replaced.
 
     Raises:
         RunFolderError: not writable, locked by another run, or holding outputs and `overwrite` is false.
@@ -237,12 +248,25 @@ def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool) -> Iterator[
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        _refuse_held(folder, outputs, overwrite)
+        read = _inputs_among(folder, outputs, inputs)
+        own = tuple(name for name in outputs if name not in read)
+        _refuse_held(folder, own, overwrite)
         clean_stale_temporaries(folder)
-        yield RunFolder(folder, tuple(outputs))
+        yield RunFolder(folder, own, read)
     finally:
         lock.unlink(missing_ok=True)  # while still holding it: a later run finds no stale file
         os.close(fd)  # closing releases the lock
+
+
+def _inputs_among(folder: Path, outputs: Sequence[str], inputs: Sequence[Path]) -> tuple[str, ...]:
+    """The names of `outputs` whose file in `folder` is one of `inputs` (the same file, however named)."""
+    read = [Path(p) for p in inputs if Path(p).is_file()]
+    out = []
+    for name in outputs:
+        path = folder / name
+        if path.is_file() and any(os.path.samefile(path, p) for p in read):
+            out.append(name)
+    return tuple(out)
 
 
 def _lock(lock: Path, folder: Path) -> int:

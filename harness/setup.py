@@ -6,6 +6,8 @@ functions instead of rebuilding it by hand.
 
 from __future__ import annotations
 
+import dataclasses
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +44,7 @@ __all__ = [
 
 # absolute, so that the entry points find the configs wherever they are called from
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # a system's name: it names output files
 
 
 def _plain(value: Any) -> float | list[float]:
@@ -65,19 +68,92 @@ def with_auto_system(overrides: Sequence[str]) -> list[str]:
     return ["system=auto", *out]
 
 
+def _config_folders() -> list[Path]:
+    """The folders configs are read from: Hydra's file search path (with --config-dir), else conf/."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        sources = HydraConfig.get().runtime.config_sources
+        return [Path(s.path) for s in sources if s.schema == "file"]
+    return [CONF_DIR]
+
+
+def _as_strings(raw: Any) -> list[str]:
+    return [str(p) for p in (list(raw) if OmegaConf.is_list(raw) or isinstance(raw, list) else [raw])]
+
+
+def own_config_folder(group: str, name: str, key: str, value: Any) -> Path | None:
+    """The folder of the config file `<group>/<name>.yaml` (first on the search path) whose own `key` is `value`,
+    where a relative path in it is relative to: None where the value is not that file's (given on the command
+    line, to the current directory) or there is no such file."""
+    for folder in _config_folders():
+        candidate = folder / group / f"{name}.yaml"
+        if not candidate.is_file():
+            continue
+        own = OmegaConf.to_container(OmegaConf.load(candidate), resolve=True).get(key)  # type: ignore[union-attr]
+        if own not in (None, "???") and _as_strings(own) == _as_strings(value):
+            return candidate.parent
+    return None
+
+
+def _system_choice(cfg: DictConfig) -> str | None:
+    """The system config chosen (Hydra's choice of the group, else the system's own name)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        choice = HydraConfig.get().runtime.choices.get("system")
+        if choice:
+            return str(choice)
+    name = cfg.system.get("name")
+    return str(name) if name else None
+
+
+def system_model_path(cfg: DictConfig) -> str:
+    """`system.mjcf` as a path or name to load: a relative path written in a system config file is relative to
+    that file's folder (as a data config's paths are to its own), one given on the command line to the current
+    directory; a built-in system's name stays a name."""
+    value = str(cfg.system.mjcf)
+    p = Path(value).expanduser()
+    choice = _system_choice(cfg)
+    if p.is_absolute() or not p.suffix or choice is None:
+        return str(p)
+    folder = own_config_folder("system", choice, "mjcf", cfg.system.mjcf)
+    return str(p if folder is None else (folder / p).resolve())
+
+
+def _stale_name(choice: str, name: Any, mjcf: Any) -> bool:
+    """Whether `name` is the chosen system config's own while its model is not (`system=two_link
+    system.mjcf=other.xml`): that name is the config's model's, and the model given names itself."""
+    own_name = own_config_folder("system", choice, "name", name) is not None
+    return own_name and own_config_folder("system", choice, "mjcf", mjcf) is None
+
+
 def load_system(cfg: DictConfig) -> Plant:
-    """The plant of `system.mjcf`.
+    """The plant of `system.mjcf` (`system_model_path`), named `system.name` where that is set (on the command
+    line, or in a system config beside that config's own model).
 
     Raises:
         ConfigError: the value names no model (an unknown system, a missing file or folder, a log): the key named.
         ModelError: the model itself cannot be used (MuJoCo rejects it, unsupported joints, ...).
     """
+    name = cfg.system.get("name")
+    if name is not None and not _PLAIN_NAME.fullmatch(str(name)):
+        raise ConfigError(
+            f"system.name={name!r}: it names the outputs (<name>_calibrated.xml, the system in the results), so it "
+            "is a plain name of letters, digits, '_', '-' and '.', no folder; null takes the model file's"
+        )
+    choice = _system_choice(cfg)
+    if name is not None and choice is not None and _stale_name(choice, name, cfg.system.mjcf):
+        name = None
+    path = system_model_path(cfg)
     try:
-        return load_plant(cfg.system.mjcf)
+        plant = load_plant(path)
     except ModelError:
         raise
     except ValueError as err:  # mjcf_path: what the value names is no model file
-        raise ConfigError(f"system.mjcf: {err}") from None
+        where = f" (relative to {Path.cwd()})" if Path(path).suffix and not Path(path).is_absolute() else ""
+        raise ConfigError(f"system.mjcf: {err}{where}") from None
+    return plant if name is None or str(name) == plant.name else dataclasses.replace(plant, name=str(name))
 
 
 def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:

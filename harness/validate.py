@@ -211,6 +211,12 @@ def check_driven(plant: Plant) -> None:
     Raises:
         ConfigError: naming the model (and the actuator) and how to fix it.
     """
+    for a in plant.actuation.actuators:  # before the count of driven joints, which a gear 0 leaves out
+        if a.gear == 0:
+            raise ConfigError(
+                f"{plant.path}: actuator {a.name!r} on joint {plant.joint_names[a.joint]!r} has gear 0: it applies no "
+                "torque to the joint, so nothing can excite it: give it a non-zero gear (1 for a direct drive)"
+            )
     if not any(bool(a) for a in plant.actuated):
         raise ConfigError(
             f"{plant.path}: no joint of {plant.name} is driven (the model has no <actuator> on its joints), so "
@@ -545,6 +551,13 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         if tilde is not None:  # Hydra's grammar reads a bare ~ as an operator; a quoted value is a plain string
             key, value = tilde.split("=", 1)
             lines.append(f"a value that begins with ~ must be quoted: {key}='{value}'")
+        equal = next(
+            (o for o in overrides if "=" in o.split("=", 1)[1].strip("'\"") and "mismatched input '='" in str(err)),
+            None,
+        )
+        if equal is not None:  # a file name with = in it (run=3.csv): Hydra reads the second = as its own
+            key, value = equal.split("=", 1)
+            lines.append(f"a value with = in it must be quoted: {key}='{value}'")
         raise ConfigError("; ".join(lines) or type(err).__name__) from None
 
 

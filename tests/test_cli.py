@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -162,6 +163,84 @@ def test_model_xml_is_an_output_never_overwritten_silently_nor_left_behind(tmp_p
     assert "Compiled by MuJoCo from arm.urdf" in (out / "model.xml").read_text()
     run(compose_config(["record=none", "system=pendulum", "overwrite=true"]), output_dir=out)
     assert sorted(p.name for p in out.iterdir()) == ["data.csv", "results.json"]
+
+
+def test_a_urdf_saved_as_xml_is_read_as_a_urdf(tmp_path: Path) -> None:
+    """A URDF whose file is called .xml: MuJoCo compiled it as it is, without the motors a URDF gets at its effort
+    limits, and the run was refused with advice to add motors to an MJCF. Its root element tells it."""
+    from dynamics.errors import ModelError
+    from dynamics.plant import load_plant
+    from dynamics.urdf import is_urdf
+
+    path = tmp_path / "arm.xml"
+    path.write_text(URDF_ARM)
+    plant = load_plant(path)
+    assert plant.source == path and plant.mj_model.nu == 1
+    assert np.isclose(float(plant.tau_limit[0]), 10.0)  # the URDF's effort limit
+    assert not is_urdf(REPO / "mjcf" / "pendulum.xml")
+    (tmp_path / "broken.xml").write_text("<robot><link")
+    with pytest.raises(ModelError, match=r"broken\.xml: not a readable URDF: unclosed token: line 1"):
+        load_plant(tmp_path / "broken.xml")
+    (tmp_path / "text.xml").write_text("not markup")
+    assert not is_urdf(tmp_path / "text.xml")
+
+
+def test_a_relative_model_path_in_a_users_system_config_is_relative_to_that_config(tmp_path: Path) -> None:
+    """`mjcf: ../../models/arm.xml` in <dir>/system/arm.yaml was read against the working directory (a data
+    config's paths are against its own folder), and the error named neither. Now the config's folder; a relative
+    path on the command line stays against the working directory, and its error says so."""
+    from harness.init import main
+
+    (tmp_path / "models").mkdir()
+    model = tmp_path / "models" / "arm.xml"
+    shutil.copy(REPO / "mjcf" / "pendulum.xml", model)
+    config = tmp_path / "conf" / "system" / "arm.yaml"
+    assert main([str(model), "--out", str(config)]) == 0
+    text = config.read_text()
+    config.write_text(text.replace(f"mjcf: {model}", "mjcf: ../../models/arm.xml", 1))
+    assert "mjcf: ../../models/arm.xml" in config.read_text()
+    base = [sys.executable, "-m", "harness.run"]
+    proc = subprocess.run(
+        [*base, "--config-dir", str(tmp_path / "conf"), "record=none", "system=arm", f"hydra.run.dir={tmp_path}/run"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads((tmp_path / "run" / "results.json").read_text())["system"] == "arm"
+    proc = subprocess.run(
+        [*base, "record=none", "system.mjcf=models/arm.xml", f"hydra.run.dir={tmp_path / 'run2'}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].endswith(f"model file not found: models/arm.xml (relative to {REPO})")
+
+
+def test_system_name_names_the_outputs_and_must_be_a_plain_name(tmp_path: Path) -> None:
+    """`system.name` was read and then ignored: the results (and a diagnosis's calibrated MJCF) still carried the
+    model file's name, whatever the config said. Now it names them; one with a folder in it is refused by its key
+    before anything is written."""
+    from harness.validate import ConfigError
+
+    results = run(compose_config(["record=none", "system=pendulum", "system.name=bench_pendulum"]), output_dir=tmp_path)
+    assert results["system"] == "bench_pendulum"
+    for bad in ("my/arm", "../escaped", ".hidden"):
+        out = tmp_path / bad.replace("/", "_")
+        with pytest.raises(ConfigError, match=r"system\.name=.*a plain name of letters, digits"):
+            run(compose_config(["record=none", "system=pendulum", f"system.name={bad}"]), output_dir=out)
+        assert not out.exists()
+    # a built-in config's own name is its own model's: another model given in its place names itself
+    from harness.setup import load_system
+
+    other = REPO / "mjcf" / "pendulum.xml"
+    assert load_system(compose_config(["system=two_link", f"system.mjcf={other}"])).name == "pendulum"
+    assert load_system(compose_config(["system=two_link", f"system.mjcf={other}", "system.name=mine"])).name == "mine"
 
 
 def test_failed_run_leaves_no_results(tmp_path: Path) -> None:

@@ -224,6 +224,30 @@ def test_sysid_init_refuses_an_out_it_cannot_write_in_one_line(
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
 
 
+@pytest.mark.parametrize("case", ["the_model_itself", "not_yaml", "undriven"])
+def test_sysid_init_refuses_what_would_lose_the_model_or_write_a_config_that_cannot_run(
+    tmp_path: Path, case: str, capsys: pytest.CaptureFixture
+) -> None:
+    """--out the model file itself with --force replaced the MJCF by a config that pointed at itself; an --out that
+    is not .yaml was written where Hydra never finds it; a model no actuator drives got a config that sysid-run
+    then refused. Each is one line, exit 2, and every file stays as it was."""
+    from harness.init import main
+
+    model = tmp_path / "arm.xml"
+    text = (REPO / "mjcf" / "two_link.xml").read_text()
+    if case == "undriven":
+        text = text[: text.index("<actuator>")] + text[text.index("</actuator>") + len("</actuator>") :]
+    model.write_text(text)
+    out = {"the_model_itself": model, "not_yaml": tmp_path / "arm.txt", "undriven": tmp_path / "arm.yaml"}[case]
+    code = main([str(model), "--out", str(out), "--force"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("sysid-init: error: "), err
+    assert ("no joint of arm is driven" if case == "undriven" else "reads a system config from a .yaml file") in err
+    assert model.read_text() == text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.xml"]
+
+
 def test_a_slide_joint_is_identified_and_reported_as_a_force(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     model = tmp_path / "cart.xml"
     model.write_text(

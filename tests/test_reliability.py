@@ -242,6 +242,71 @@ def test_a_folder_holding_the_other_tools_results_is_refused_even_with_overwrite
         pass
 
 
+def test_a_diverging_simulation_is_one_error_line_and_mujocos_warning_goes_to_the_log(tmp_path: Path) -> None:
+    """A two-link arm at a 50 ms step diverges: MuJoCo printed its own "WARNING: Nan, Inf or huge value in QACC"
+    and a blank line on stderr before the run's error line. The warning now goes to the job's log."""
+    model = tmp_path / "coarse.xml"
+    model.write_text(
+        '<mujoco model="coarse"><compiler angle="radian"/><option timestep="0.05"/><worldbody>'
+        '<body name="l1" pos="0 0 1"><joint name="j1" axis="0 1 0" range="-2 2" damping="0.01"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.5"/><body name="l2" pos="0 0 -0.3">'
+        '<joint name="j2" axis="0 1 0" range="-2 2"/><geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" '
+        'mass="0.3"/></body></body></worldbody><actuator><motor joint="j1" ctrlrange="-5 5"/>'
+        '<motor joint="j2" ctrlrange="-5 5"/></actuator></mujoco>'
+    )
+    out = tmp_path / "run"
+    proc = _cli(f"system.mjcf={model}", f"hydra.run.dir={out}", "record=none")
+    _one_line_error(proc, "coarse: simulation diverged at t = ", "lower the physics timestep")
+    assert "WARNING" not in proc.stderr and "\n\n" not in proc.stderr, proc.stderr
+    assert "MuJoCo: Nan, Inf or huge value in QACC" in (out / "sysid-run.log").read_text()
+
+
+def test_a_model_named_like_an_output_in_the_run_folder_is_the_runs_input_and_is_kept(tmp_path: Path) -> None:
+    """An MJCF called model.xml in the run folder (the name a URDF's run gives its compiled MJCF): sysid-run
+    refused the folder as holding another run's model.xml, and with overwrite=true deleted the model it had just
+    read (an MJCF's run writes no model.xml). Now it is the run's input: neither a finished run's output nor
+    retired, first run and rerun alike."""
+    model = tmp_path / "model.xml"
+    shutil.copy(REPO / "mjcf" / "pendulum.xml", model)
+    text = model.read_bytes()
+    for extra in ((), ("overwrite=true",)):
+        proc = _cli(f"system.mjcf={model}", f"hydra.run.dir={tmp_path}", "record=none", *extra)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert model.read_bytes() == text
+        assert (tmp_path / "results.json").is_file()
+    assert json.loads((tmp_path / "results.json").read_text())["config"]["system"]["mjcf"] == str(model)
+
+
+def test_a_diagnosis_of_a_calibrated_mjcf_in_its_own_folder_keeps_it(finished_run: Path, tmp_path: Path) -> None:
+    """Diagnosing again, into the same folder, with the calibrated MJCF an earlier diagnosis wrote there as the
+    model: the rerun (overwrite=true) retired the earlier diagnosis's calibrated MJCFs, the model it had read
+    among them, and deleted it. Now it stays as it was, beside the new diagnosis's own."""
+    first = ("diagnose.recording=false", "diagnose.final_fit=false", f"data.path={finished_run / 'data.csv'}")
+    proc = _cli("system=pendulum", f"hydra.run.dir={tmp_path}", *first, module="harness.diagnose")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    model = tmp_path / "pendulum_calibrated.xml"
+    text = model.read_bytes()
+    again = (f"system.mjcf={model}", f"hydra.run.dir={tmp_path}", "overwrite=true", *first)
+    proc = _cli(*again, module="harness.diagnose")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert model.read_bytes() == text
+    assert (tmp_path / "pendulum_calibrated_calibrated.xml").is_file()
+
+
+def test_a_run_that_would_write_over_its_input_is_refused_before_anything_is_replaced(tmp_path: Path) -> None:
+    """The last guard of `claim(inputs=...)`: an output of the run's own name that is the file it read is neither
+    retired nor replaced; writing it is refused and the previous outputs stay."""
+    (tmp_path / "model.xml").write_text("<mujoco/>")
+    (tmp_path / "results.json").write_text("{}")
+    with claim(tmp_path, outputs=("model.xml", "results.json"), overwrite=True, inputs=[tmp_path / "model.xml"]) as f:
+        assert f.outputs == ("results.json",) and f.inputs == ("model.xml",)
+        with pytest.raises(RunFolderError, match=r"would write model\.xml over the file it read"), f.staged() as stage:
+            (stage / "model.xml").write_text("<mujoco><worldbody/></mujoco>")
+            (stage / "results.json").write_text('{"new": 1}')
+    assert (tmp_path / "model.xml").read_text() == "<mujoco/>"
+    assert (tmp_path / "results.json").read_text() == "{}"
+
+
 @pytest.mark.parametrize("stop", ["full_disk", "sigterm"])
 def test_a_rerun_failing_or_stopped_while_writing_keeps_the_old_results_as_they_were(
     finished_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stop: str
@@ -499,6 +564,10 @@ def test_an_unknown_key_or_malformed_value_is_one_config_error() -> None:
     with pytest.raises(ConfigError, match=r"a value that begins with ~ must be quoted: data\.path='~/x\.csv'$"):
         check_command_line(["system=two_link", "data.path=~/x.csv"], CONF, "diagnose")
     check_command_line(["system=two_link", "data.path='~/x.csv'"], CONF, "diagnose")
+    # a file name with = in it: Hydra's parser alone said "mismatched input '=' expecting <EOF>", naming no key
+    with pytest.raises(ConfigError, match=r"a value with = in it must be quoted: data\.path='/d/run=3\.csv'$"):
+        check_command_line(["system=two_link", "data.path=/d/run=3.csv"], CONF, "diagnose")
+    check_command_line(["system=two_link", "data.path='/d/run=3.csv'"], CONF, "diagnose")
 
 
 def test_a_misspelled_key_is_answered_with_the_key_meant_not_with_a_plus() -> None:

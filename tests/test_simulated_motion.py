@@ -65,6 +65,7 @@ def test_the_torque_limit_is_what_the_actuator_gives_both_ways(tmp_path: Path, a
         ('<motor name="lift" joint="j0" ctrlrange="0 20"/>', r"actuator 'lift' can drive joint 'j0' one way only"),
         ('<motor name="lift" joint="j0" forcelimited="true" forcerange="-8 0"/>', r"'lift' can drive joint 'j0' one"),
         ('<general name="lift" joint="j0" gainprm="0" ctrlrange="-1 1"/>', r"'lift' on joint 'j0' has gain 0"),
+        ('<motor name="lift" joint="j0" gear="0" ctrlrange="-1 1"/>', r"'lift' on joint 'j0' has gear 0: it applies"),
         # no range at all: an unlimited torque, and the ctrl still moves nothing (the run went on to NaN controls)
         ('<general name="lift" joint="j0" gainprm="0" biastype="affine" biasprm="0.5 0 0"/>', r"'lift' .* has gain 0"),
     ],
