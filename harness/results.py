@@ -103,6 +103,14 @@ def summary_table(results: dict[str, Any]) -> str:
             "their estimates rest on the prior, if any, and their stds are large: use more periods or an optimised "
             "excitation"
         )
+    val_sim = val.get("simulated")
+    if val_sim is not None and not val_sim["holds"]:
+        lines.append(
+            f"WARNING: the validation motion that ran breaks the limits: {val_sim['worst']}: the validation torque "
+            "RMS below is judged where the model was not identified (a servo lags its target, an actuator "
+            "saturates, or the physics step is too coarse for the tracking loop: check the MJCF's ctrlrange, "
+            "forcerange and timestep); it says less of the parameters than the identification's stds"
+        )
     for joint, rms in val["torque_rms"].items():
         unit = val.get("unit", {}).get(joint, "N m")  # a slide joint's is a force
         noise = val["noise_std"][joint]

@@ -108,6 +108,12 @@ def test_a_motion_that_breaks_the_limits_is_named_and_flagged(tmp_path: Path) ->
     assert "limits hold on the design, not in the motion that ran" in summary_table(results)
     assert "WARNING: the simulated motion" not in summary_table(_results(held))
     assert "limits hold\n" in summary_table(_results(held))
+    # the validation's own motion (another design, as a position-servo arm's lags): warned of too
+    validated = _results(held)
+    validated["validation"]["simulated"] = motion
+    assert f"WARNING: the validation motion that ran breaks the limits: {motion['worst']}" in summary_table(validated)
+    validated["validation"]["simulated"] = held
+    assert "WARNING" not in summary_table(validated)
 
 
 def test_a_joint_that_does_not_follow_the_design_is_warned_of(tmp_path: Path) -> None:
