@@ -34,7 +34,7 @@ def is_urdf(path: Path) -> bool:
         return True
     try:
         for _, element in ET.iterparse(path, events=("start",)):
-            return element.tag == "robot"
+            return element.tag.rsplit("}", 1)[-1] == "robot"  # with or without an XML namespace
     except (ET.ParseError, OSError):
         return False
     return False

@@ -405,17 +405,20 @@ def _text_file(path: Path) -> _TextFile:
 
 
 def _utf16_without_bom(head: bytes) -> str | None:
-    """`utf-16-le` or `utf-16-be` when the first bytes are text of U+0001-U+00FF (CSV's own characters) in UTF-16
-    without a byte-order mark: a NUL at every odd byte (little-endian) or every even one (big-endian), and none
-    between them; None otherwise (a binary file)."""
+    """`utf-16-le` or `utf-16-be` when the first bytes are UTF-16 text without a byte-order mark: no NUL at the
+    even (little-endian) or odd (big-endian) bytes, NULs at most of the others (CSV is mostly ASCII; a `τ` or
+    `°` in a header is not), and the sample decodes to printable text and line ends; None otherwise (a binary
+    file: int16 samples of 1 to 255 have the NULs, not the text)."""
     sample = head[: min(len(head), _UTF16_SNIFF_BYTES) // 2 * 2]
     if len(sample) < 4:
         return None
     even, odd = sample[0::2], sample[1::2]
-    if not odd.strip(b"\0") and b"\0" not in even:
-        return "utf-16-le"
-    if not even.strip(b"\0") and b"\0" not in odd:
-        return "utf-16-be"
+    for codec, high, low in (("utf-16-le", odd, even), ("utf-16-be", even, odd)):
+        if b"\0" in low or high.count(0) < 0.5 * len(high):
+            continue
+        text = sample.decode(codec, errors="replace")
+        if all(c.isprintable() or c in "\r\n\t" for c in text):
+            return codec
     return None
 
 
@@ -812,7 +815,9 @@ def _check_time_unit(t: np.ndarray, step: float, column: _Column, label: str, sr
 
 def _check_length(n: int, min_samples: int, src: str, what: str) -> None:
     if n < min_samples:
-        raise DataError(f"{src}: too little data: {n} {what}, at least {min_samples} are needed")
+        raise DataError(
+            f"{src}: too little data: {n} {what}, at least {min_samples} are needed (the least is data.min_samples)"
+        )
 
 
 def _check_angle_units(

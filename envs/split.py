@@ -83,7 +83,8 @@ def split_train_validation(
         if short < min_samples:
             fix = (
                 f"data.validation_fraction {validation_fraction:g} holds {data.n_samples - cut} out; give a fraction "
-                f"between {min_samples / data.n_samples:.2g} and {1 - min_samples / data.n_samples:.2g}, or more data"
+                f"between {min_samples / data.n_samples:.2g} and {min(0.9, 1 - min_samples / data.n_samples):.2g} "
+                "(0.9 at most), or more data"
                 if 2 * min_samples <= data.n_samples
                 else "give more data"
             )

@@ -37,7 +37,7 @@ from envs.measured import read_many
 from envs.split import names_file, split_train_validation
 from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
-from harness.setup import CONF_DIR, load_system, own_config_folder, with_auto_system, with_model_defaults
+from harness.setup import CONF_DIR, as_strings, load_system, own_config_folder, with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, flag_set_by, validate_diagnose_config
 from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
 from identify.diagnose import (
@@ -76,7 +76,7 @@ def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceMo
         folder = data_paths[0].parent / "authors_identified"
         files = sorted(folder.glob("*.yml")) if folder.is_dir() else []
     else:
-        files = [Path(p) for p in _as_list(spec)]
+        files = [Path(p) for p in as_strings(spec)]
     out: dict[str, ReferenceModel] = {}
     for f in files:
         try:
@@ -87,10 +87,6 @@ def reference_models(spec: Any, data_paths: list[Path]) -> dict[str, ReferenceMo
         name = "authors_" + re.sub(r"^design_.*?_model_", "", f.stem)  # design_C.1_model_2.0 -> authors_2.0
         out[name] = ReferenceModel(torque=partial(author_torque, p), accel=partial(author_accel, p))
     return out
-
-
-def _as_list(raw: Any) -> list[str]:
-    return [str(p) for p in (list(raw) if OmegaConf.is_list(raw) or isinstance(raw, list) else [raw])]
 
 
 def _data_config_folder(cfg: DictConfig) -> Path | None:
@@ -105,7 +101,7 @@ def data_paths(cfg: DictConfig) -> list[Path]:
     file that exists under the name as written (`run[1].csv`) is that file, not a pattern."""
     folder = _data_config_folder(cfg)
     out: list[Path] = []
-    for item in _as_list(cfg.data.path):
+    for item in as_strings(cfg.data.path):
         p = Path(item).expanduser()
         p = p if p.is_absolute() or folder is None else (folder / p).resolve()
         if glob.has_magic(str(p)) and not p.exists():  # a pattern (logs/*.csv): its files, in name order
@@ -265,7 +261,10 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     except DataError:  # raised again where the logs are read, in the claimed folder
         logs = []
     inputs = [plant.source or plant.path, *logs]
-    with claim(_output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite), inputs=inputs) as folder:
+    writes = [n for n in outputs if n not in previous]
+    with claim(
+        _output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite), inputs=inputs, writes=writes
+    ) as folder:
         return _run(cfg, plant, folder)
 
 
@@ -299,7 +298,7 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     # at the full rate: thinning would blur a stuck or clipped torque
     anomalies = find_anomalies(datasets, plant.hinge, plant.q_range, plant.limit_margin)
     validation = cfg.data.get("validation")
-    datasets, excluded = _without_stuck_torques(datasets, anomalies, _as_list(validation) if validation else [])
+    datasets, excluded = _without_stuck_torques(datasets, anomalies, as_strings(validation) if validation else [])
     if excluded:
         stage(f"left out (a torque stuck at zero): {'; '.join(excluded)}")
     reduced = _reduce(plant, datasets, derivatives, options, cfg, stage)
@@ -308,14 +307,19 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
     split = split_train_validation(
         datasets,
         validation_fraction=float(cfg.data.get("validation_fraction", 0.3)),
-        validation=_as_list(validation) if validation is not None else None,
+        validation=as_strings(validation) if validation is not None else None,
         min_samples=int(cfg.data.get("min_samples", 50)),
     )
     references = reference_models(
         OmegaConf.to_container(opts.references) if OmegaConf.is_list(opts.references) else opts.references, paths
     )
-    if references and plant.nv != 2:
-        references = {}
+    if references and plant.nv != 2:  # the references are the DFKI double pendulum's two-joint model form
+        if opts.references != "auto":
+            raise ConfigError(
+                f"diagnose.references: the reference models are of the two-joint DFKI double pendulum's form, and "
+                f"{plant.name} has {plant.nv} joint(s); diagnose.references=null compares with none"
+            )
+        references = {}  # auto: found beside another robot's data, they do not apply
     stage(
         f"diagnosing {sum(d.n_samples for d in split.train)} training and "
         f"{sum(d.n_samples for d in split.validation)} validation rows"

@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="where to write it (default: print it)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing file")
     args = parser.parse_args(argv)
-    if args.out is not None and args.out.suffix.lower() not in (".yaml", ".yml") and not args.out.is_dir():
+    if args.out is not None and args.out.suffix != ".yaml" and not args.out.is_dir():  # Hydra finds .yaml alone
         print(
             f"sysid-init: error: --out {args.out}: Hydra reads a system config from a .yaml file "
             f"(<dir>/system/<name>.yaml); name it {args.out.with_suffix('.yaml').name}",

@@ -32,6 +32,8 @@ def _overrides(job: Path) -> str:
 def collect(sweep: Path) -> list[dict[str, Any]]:
     """One record per job folder (any folder below `sweep` holding a `.hydra` folder or an output file)."""
     sweep = Path(sweep)
+    if sweep.is_file():
+        raise FileNotFoundError(f"{sweep} is a file, not a sweep folder: give the folder of the sweep (or one run)")
     if not sweep.is_dir():
         raise FileNotFoundError(f"sweep folder not found: {sweep}")
 
@@ -114,7 +116,8 @@ def _headline(kind: str, p: dict[str, Any]) -> dict[str, Any]:
             cond_XtX=p["excitation"]["cond_XtX"],
             cond_W_colnorm=p["excitation"]["cond_W_colnorm"],
             limits_ok=p["excitation"]["limits_ok"],
-            max_abs_z=max(abs(b["z"]) for b in p["base_parameters"] if b.get("z") is not None),
+            # None where no estimate has a std (the gradient estimator gives none): no |z| to report
+            max_abs_z=max((abs(b["z"]) for b in p["base_parameters"] if b.get("z") is not None), default=None),
             **{f"val_rms_{j}": v for j, v in p["validation"]["torque_rms"].items()},
             time_s=sum(p["timing_s"].values()),
         )

@@ -56,6 +56,13 @@ def write_json(path: Path, payload: dict[str, Any]) -> None:
     atomic_write(Path(path), lambda f: f.write(text + "\n"))
 
 
+# why a simulated motion leaves the design it tracks
+_WHY_IT_LAGS = (
+    "a servo lags its target, an actuator saturates, or the physics step is too coarse for the tracking loop: "
+    "check the MJCF's ctrlrange, forcerange and timestep"
+)
+
+
 def summary_table(results: dict[str, Any]) -> str:
     """A readable table of the base parameters and the validation for the terminal."""
     rows = [("base parameter", "true", "estimate", "std", "rel.err", "z")]
@@ -85,9 +92,7 @@ def summary_table(results: dict[str, Any]) -> str:
         lines.append(
             f"WARNING: the simulated motion breaks the limits the design keeps: {sim['worst']}"
             + (f"; largest tracking error {track[worst]:.3g} rad ({worst})" if worst else "")
-            + ": the motion that ran is not the design (a servo lags its target, an actuator saturates, or the "
-            "physics step is too coarse for the tracking loop: check the MJCF's ctrlrange, forcerange and timestep); "
-            "the data hold the motion that ran"
+            + f": the motion that ran is not the design ({_WHY_IT_LAGS}); the data hold the motion that ran"
         )
     for joint, miss in (sim or {}).get("not_following", {}).items():
         lines.append(
@@ -107,9 +112,8 @@ def summary_table(results: dict[str, Any]) -> str:
     if val_sim is not None and not val_sim["holds"]:
         lines.append(
             f"WARNING: the validation motion that ran breaks the limits: {val_sim['worst']}: the validation torque "
-            "RMS below is judged where the model was not identified (a servo lags its target, an actuator "
-            "saturates, or the physics step is too coarse for the tracking loop: check the MJCF's ctrlrange, "
-            "forcerange and timestep); it says less of the parameters than the identification's stds"
+            f"RMS below is judged where the model was not identified ({_WHY_IT_LAGS}); it says less of the "
+            "parameters than the identification's stds"
         )
     for joint, rms in val["torque_rms"].items():
         unit = val.get("unit", {}).get(joint, "N m")  # a slide joint's is a force

@@ -224,7 +224,10 @@ def run(cfg: DictConfig, output_dir: Path | None = None) -> dict[str, Any]:
     out = Path(output_dir) if output_dir is not None else _hydra_output_dir()
     # model.xml, a URDF's compiled MJCF, is retired by any run (no other robot's model left beside the results),
     # except where it is the model this run reads
-    with claim(out, outputs=OUTPUTS, overwrite=bool(cfg.overwrite), inputs=[loaded.source or loaded.path]) as folder:
+    writes = [n for n in OUTPUTS if n != "model.xml" or loaded.source is not None]
+    with claim(
+        out, outputs=OUTPUTS, overwrite=bool(cfg.overwrite), inputs=[loaded.source or loaded.path], writes=writes
+    ) as folder:
         return _run(cfg, folder, loaded)
 
 

@@ -225,7 +225,14 @@ def clean_stale_temporaries(folder: Path) -> list[str]:
 
 
 @contextmanager
-def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool, inputs: Sequence[Path] = ()) -> Iterator[RunFolder]:
+def claim(
+    folder: Path,
+    *,
+    outputs: Sequence[str],
+    overwrite: bool,
+    inputs: Sequence[Path] = (),
+    writes: Sequence[str] | None = None,
+) -> Iterator[RunFolder]:
     """Hold `folder` for one run (see the module docstring); released when the block ends.
 
     Args:
@@ -236,7 +243,8 @@ def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool, inputs: Sequ
         inputs: the files the run reads (its model, its logs). One that lies in `folder` under the name of an
             output (a model called model.xml, a calibrated MJCF of an earlier diagnosis there) is the user's input,
             not a finished run's output: it neither counts as one nor is retired, and a run that would write
-            over it is refused before anything is replaced.
+            over it is refused: here where it is among `writes`, else when its outputs are put in place.
+        writes: the outputs this run certainly writes (None: all of `outputs`; the others it only retires).
 
     Raises:
         RunFolderError: not writable, locked by another run, or holding outputs and `overwrite` is false.
@@ -249,6 +257,12 @@ def claim(folder: Path, *, outputs: Sequence[str], overwrite: bool, inputs: Sequ
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         read = _inputs_among(folder, outputs, inputs)
+        clash = [name for name in read if name in (outputs if writes is None else writes)]
+        if clash:
+            raise RunFolderError(
+                f"run folder {folder}: this run writes {clash[0]}, and that file is its input; copy the input "
+                "elsewhere or choose another folder (or, for sysid-diagnose, another system.name)"
+            )
         own = tuple(name for name in outputs if name not in read)
         _refuse_held(folder, own, overwrite)
         clean_stale_temporaries(folder)

@@ -7,7 +7,6 @@ functions instead of rebuilding it by hand.
 from __future__ import annotations
 
 import dataclasses
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf.errors import OmegaConfBaseException
 
 from dynamics.base import BaseParameters, base_parameters
 from dynamics.errors import InfeasibleExcitationError, ModelError
@@ -28,7 +28,7 @@ from excitation.limits import Limits, limits_for
 from excitation.registry import design_excitation
 from harness.defaults import resolve_system
 from harness.progress import Progress
-from harness.validate import ConfigError
+from harness.validate import ConfigError, check_system_name
 
 __all__ = [
     "CONF_DIR",
@@ -44,7 +44,6 @@ __all__ = [
 
 # absolute, so that the entry points find the configs wherever they are called from
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
-_PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # a system's name: it names output files
 
 
 def _plain(value: Any) -> float | list[float]:
@@ -78,21 +77,34 @@ def _config_folders() -> list[Path]:
     return [CONF_DIR]
 
 
-def _as_strings(raw: Any) -> list[str]:
+def as_strings(raw: Any) -> list[str]:
+    """A config value that is one item or a list of them, as a list of strings."""
     return [str(p) for p in (list(raw) if OmegaConf.is_list(raw) or isinstance(raw, list) else [raw])]
 
 
 def own_config_folder(group: str, name: str, key: str, value: Any) -> Path | None:
-    """The folder of the config file `<group>/<name>.yaml` (first on the search path) whose own `key` is `value`,
-    where a relative path in it is relative to: None where the value is not that file's (given on the command
-    line, to the current directory) or there is no such file."""
+    """The folder of the config file `<group>/<name>.yaml` that Hydra reads (the first on the search path), where
+    its own `key` is `value` (the value in use, unresolved or resolved): there a relative path in it is relative
+    to. None where the value is not that file's (given on the command line, to the current directory) or there
+    is no such file."""
     for folder in _config_folders():
         candidate = folder / group / f"{name}.yaml"
         if not candidate.is_file():
             continue
-        own = OmegaConf.to_container(OmegaConf.load(candidate), resolve=True).get(key)  # type: ignore[union-attr]
-        if own not in (None, "???") and _as_strings(own) == _as_strings(value):
-            return candidate.parent
+        loaded = OmegaConf.load(candidate)
+        raw = OmegaConf.to_container(loaded, resolve=False).get(key)  # type: ignore[union-attr]
+        try:  # an interpolation within the file (an environment variable) resolves; one to another group does not
+            own = OmegaConf.select(loaded, key)
+            own = OmegaConf.to_container(own, resolve=True) if OmegaConf.is_config(own) else own
+        except OmegaConfBaseException:
+            own = raw
+        mine = value
+        if OmegaConf.is_config(value):
+            mine = OmegaConf.to_container(value, resolve=False)
+        matches = own not in (None, "???") and (
+            as_strings(own) == as_strings(value) or as_strings(raw) == as_strings(mine)
+        )
+        return candidate.parent if matches else None
     return None
 
 
@@ -137,11 +149,8 @@ def load_system(cfg: DictConfig) -> Plant:
         ModelError: the model itself cannot be used (MuJoCo rejects it, unsupported joints, ...).
     """
     name = cfg.system.get("name")
-    if name is not None and not _PLAIN_NAME.fullmatch(str(name)):
-        raise ConfigError(
-            f"system.name={name!r}: it names the outputs (<name>_calibrated.xml, the system in the results), so it "
-            "is a plain name of letters, digits, '_', '-' and '.', no folder; null takes the model file's"
-        )
+    if name is not None:
+        check_system_name(str(name))
     choice = _system_choice(cfg)
     if name is not None and choice is not None and _stale_name(choice, name, cfg.system.mjcf):
         name = None
@@ -159,14 +168,18 @@ def load_system(cfg: DictConfig) -> Plant:
 def with_model_defaults(cfg: DictConfig, plant: Plant) -> DictConfig:
     """`cfg` with every null of its system node filled from the model; prints what it assumed."""
     system, assumed = resolve_system(cfg.system, plant)
-    if not assumed:
+    renamed = system.get("name") != plant.name  # a built-in config's own name, for another model given instead
+    if renamed:
+        system.name = plant.name
+    if not assumed and not renamed:
         return cfg
-    print(f"system settings taken from the model {plant.source or plant.path} (set any to override it):")
-    for key, value in assumed.items():
-        print(f"  system.{key}={value}")
-    print("and what the model itself bounds (edit the model to change it):")
-    for line in model_limits(plant):
-        print(f"  {line}")
+    if assumed:
+        print(f"system settings taken from the model {plant.source or plant.path} (set any to override it):")
+        for key, value in assumed.items():
+            print(f"  system.{key}={value}")
+        print("and what the model itself bounds (edit the model to change it):")
+        for line in model_limits(plant):
+            print(f"  {line}")
     out = cfg.copy()
     with open_dict(out):
         out.system = system

@@ -323,6 +323,9 @@ def validate_diagnose_config(cfg: DictConfig) -> None:
             "data.validation must name the held-out file(s) (data.validation=b.csv or '[b.csv,c.csv]'), or be null "
             f"to hold out the last files (data.validation_fraction of them), got {validation!r}"
         )
+    twice = sorted({str(v) for v in names if names.count(v) > 1}) if validation is not None else []
+    if twice:
+        raise ConfigError(f"data.validation names {twice[0]!r} more than once; name each held-out file once")
     columns = OmegaConf.select(cfg, "data.columns")
     if columns is not None and not isinstance(columns, DictConfig):
         raise ConfigError(
@@ -497,6 +500,19 @@ def _first_job(overrides: list[str]) -> list[str]:
     return out
 
 
+# a system's name names output files and Hydra's run folder: no folder separator, not hidden, no control character
+_PLAIN_NAME = re.compile(r"[^/\\\x00-\x1f.][^/\\\x00-\x1f]*")
+
+
+def check_system_name(name: str) -> None:
+    """Raises ConfigError where `name` (`system.name`) is not a plain name for output files."""
+    if not _PLAIN_NAME.fullmatch(name):
+        raise ConfigError(
+            f"system.name={name!r}: it names the outputs (<name>_calibrated.xml, the system in the results, the run "
+            "folder), so it is a plain name: no '/' or '\\', not beginning with '.'; null takes the model file's"
+        )
+
+
 def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) -> None:
     """Everything about a command line that can be checked before Hydra runs it: the config-group values (all
     of a sweep's), and for a single run that the overrides compose (an unknown key, a malformed value), so that
@@ -506,6 +522,15 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         ConfigError: the first problem found.
     """
     check_group_overrides(argv, conf_dir)
+    for a in argv:  # before Hydra makes the run folder it names (outputs/${system.name}/...)
+        option, _, given = a.partition("=")
+        if option.lstrip("+") == "hydra.launcher.n_jobs" and given.strip().lstrip("-").isdigit() and int(given) == 0:
+            raise ConfigError(  # joblib's own error came after Hydra had written the sweep's multirun.yaml
+                "hydra.launcher.n_jobs=0: the number of jobs run at once; give 1 or more (-1: one per core)"
+            )
+        if option.lstrip("+") == "system.name" and given not in ("null", ""):
+            for name in given.split(",") if "-m" in argv or "--multirun" in argv else [given]:
+                check_system_name(name.strip("'\""))
     overrides = [a for a in argv if a not in ("-m", "--multirun")]
     if any(a.startswith("-") for a in overrides):  # --help, --cfg, --config-dir ...: left to Hydra
         return
@@ -551,10 +576,8 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, config_name: str) ->
         if tilde is not None:  # Hydra's grammar reads a bare ~ as an operator; a quoted value is a plain string
             key, value = tilde.split("=", 1)
             lines.append(f"a value that begins with ~ must be quoted: {key}='{value}'")
-        equal = next(
-            (o for o in overrides if "=" in o.split("=", 1)[1].strip("'\"") and "mismatched input '='" in str(err)),
-            None,
-        )
+        second = "mismatched input '='" in str(err)
+        equal = next((o for o in overrides if second and "=" in o and "=" in o.split("=", 1)[1].strip("'\"")), None)
         if equal is not None:  # a file name with = in it (run=3.csv): Hydra reads the second = as its own
             key, value = equal.split("=", 1)
             lines.append(f"a value with = in it must be quoted: {key}='{value}'")

@@ -431,3 +431,14 @@ def test_a_payload_is_confounded_with_what_makes_its_torque_not_only_its_mass_co
         [finding], [step], [chosen, other], signals, np.ones(1), X, 0, fit, SelectionOptions(), min_z=3.0
     )
     assert [(c["effect"], c["target"]) for c in out.confounded_with] == [("payload", "link7")], out.confounded_with
+
+
+def test_a_record_shorter_than_one_simulation_window_names_the_key() -> None:
+    """A validation block shorter than `diagnose.window_s` (the config's check sees the whole file, the split
+    comes later) said "shorter than one window (window_s = 20.0 s)", naming no key to change."""
+    from identify.diagnose.simulation_error import simulation_error
+
+    t = np.arange(0.0, 8.0, 0.002)
+    zeros = np.zeros((len(t), 2))
+    with pytest.raises(ValueError, match=r"record \(7\.998 s\) is shorter .* \(diagnose\.window_s = 20\.0 s\): give a"):
+        simulation_error((lambda *a: None, 0.002), t, zeros, zeros, zeros, window_s=20.0)  # type: ignore[arg-type]

@@ -53,6 +53,27 @@ def test_a_joint_that_never_moves_a_torque_stuck_at_zero_and_a_saturated_torque_
     assert find_anomalies([clean]) == []
 
 
+def test_a_torque_dropped_to_zero_for_a_while_on_a_moving_joint_is_named() -> None:
+    """A log whose elbow torque reads exactly 0 over 40 % of its rows (a dropout) was called `no_discrepancy`
+    with no anomaly: only a torque zero on more than half of the rows counted as stuck. A run of exact zeros
+    while the joint moves is named too; the same zeros while the joint rests are not (a resting joint commanded
+    nothing may read 0), nor are a few scattered ones."""
+    t = np.arange(5000) / 500.0
+    rng = np.random.default_rng(1)
+    q = np.column_stack([np.sin(2 * np.pi * 0.5 * t), 0.8 * np.sin(2 * np.pi * 0.3 * t)])
+    tau = np.column_stack([np.sin(t), np.cos(t)]) + rng.normal(0, 0.01, (5000, 2))
+    dropped = tau.copy()
+    dropped[1000:3000, 1] = 0.0
+    (found,) = find_anomalies([_record(q, dropped)])
+    assert (found.kind, found.joint, found.detail["longest_zero_run"]) == ("torque_stuck_at_zero", "elbow", 2000)
+    resting = q.copy()
+    resting[1000:3000, 1] = 0.3  # the same zeros while the elbow rests
+    assert find_anomalies([_record(resting, dropped)]) == []
+    short = tau.copy()
+    short[1000:1090, 1] = 0.0  # 90 rows: under the 100 a dropout needs
+    assert find_anomalies([_record(q, short)]) == []
+
+
 def test_a_clipped_command_is_named_even_when_the_measured_torque_is_not_clipped() -> None:
     t = np.arange(3000) / 500.0
     cmd = np.clip(12 * np.sin(2 * np.pi * 0.5 * t), -8, 8)

@@ -165,6 +165,9 @@ def test_the_lofo_summary_counts_the_angle_zeroed_reading_where_it_was_judged() 
         ("I1: 1\n", r"missing parameters \['I2', "),
         ("\n".join(f"{k}: 1.0" for k in AUTHOR_KEYS).replace("m2: 1.0", "m2: abc"), r"parameter m2 is 'abc', not a"),
         ("\n".join(f"{k}: 1.0" for k in AUTHOR_KEYS).replace("r1: 1.0", "r1: .nan"), r"parameter r1 is nan, not a"),
+        # a negative mass was read and simulated (an error of a whole radian, no word)
+        ("\n".join(f"{k}: 1.0" for k in AUTHOR_KEYS).replace("m1: 1.0", "m1: -5"), r"parameter m1 is -5, not physical"),
+        ("\n".join(f"{k}: 1.0" for k in AUTHOR_KEYS).replace("g: 1.0", "g: 0"), r"parameter g is 0, not physical"),
     ],
 )
 def test_a_bad_reference_model_file_is_one_line_naming_the_file_and_the_key(

@@ -241,6 +241,7 @@ def test_the_state_filter_is_the_data_configs_unless_diagnose_sets_one(csv_files
         ("diagnose=foo", r"diagnose must be a mapping of settings .* got 'foo'"),
         ("data.validation=[]", r"data\.validation must name the held-out file\(s\) .* got \[\]"),
         ("data.validation={a:1}", r"data\.validation must name the held-out file\(s\) .* got \{'a': 1\}"),
+        ("data.validation=[b.csv,b.csv]", r"data\.validation names 'b\.csv' more than once; name each held-out file"),
     ],
 )
 def test_a_bad_diagnosis_setting_is_named_before_anything_is_written(

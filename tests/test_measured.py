@@ -497,7 +497,10 @@ def test_a_jump_that_stays_is_refused(tmp_path: Path, plant: Plant) -> None:
 
 
 def test_too_little_data_is_refused(tmp_path: Path, plant: Plant) -> None:
-    with pytest.raises(DataError, match=r"short\.csv: too little data: 20 rows, at least 50 are needed"):
+    with pytest.raises(
+        DataError,
+        match=r"short\.csv: too little data: 20 rows, at least 50 are needed \(the least is data\.min_samples\)",
+    ):
         read_measured(write(tmp_path / "short.csv", table(20)), plant)
 
 
@@ -561,7 +564,7 @@ def test_split_by_file_and_by_time_block(tmp_path: Path, plant: Plant) -> None:
     block = split_train_validation(datasets[:1], validation_fraction=0.25)
     assert block.by == "time_block"
     # a fraction that holds out too few rows is named with the range that works (it said "too few to split")
-    with pytest.raises(DataError, match=r"data\.validation_fraction 1e-06 holds 0 out; .* between 0\.05 and 0\.95"):
+    with pytest.raises(DataError, match=r"data\.validation_fraction 1e-06 holds 0 out; .* between 0\.05 and 0\.9 "):
         split_train_validation(datasets[:1], validation_fraction=1e-6)
     # a data config's validation file, kept while a single file is given on the command line: the key and the
     # remedy are named (it said "set validation_fraction", which cannot help)
@@ -826,9 +829,18 @@ def test_utf16_without_a_byte_order_mark_is_read(tmp_path: Path, plant: Plant, e
     data = read_measured(path, plant)
     np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
     np.testing.assert_array_equal(data.tau[:, 0], cols["tau_shoulder"])
-    # a binary file is still refused as one: its NULs fall on both kinds of byte
+    # a header with a character beyond Latin-1 (a NUL-free high byte) is text too
+    lines = text.splitlines()
+    noted = "\n".join([lines[0] + ",τ_note", *(line + ",0" for line in lines[1:])]) + "\n"
+    path.write_bytes(noted.encode(encoding))
+    assert read_measured(path, plant).q.shape == data.q.shape
+    # binary files are still refused as such: NULs at even bytes, and little-endian int16 samples of 1 to 255
+    # (NULs at every odd byte, as UTF-16 text has, but control characters, not text)
     path.write_bytes(text.encode("utf-8")[:100] + bytes(range(256)) * 8)
     with pytest.raises(DataError, match=r"bare\.csv: a binary file \(a NUL byte at byte 100"):
+        read_measured(path, plant)
+    path.write_bytes(np.tile(np.arange(1, 256, dtype="<i2"), 8).tobytes())
+    with pytest.raises(DataError, match=r"bare\.csv: a binary file \(a NUL byte at byte 1,"):
         read_measured(path, plant)
 
 

@@ -224,7 +224,7 @@ def test_sysid_init_refuses_an_out_it_cannot_write_in_one_line(
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
 
 
-@pytest.mark.parametrize("case", ["the_model_itself", "not_yaml", "undriven"])
+@pytest.mark.parametrize("case", ["the_model_itself", "not_yaml", "yml", "undriven"])
 def test_sysid_init_refuses_what_would_lose_the_model_or_write_a_config_that_cannot_run(
     tmp_path: Path, case: str, capsys: pytest.CaptureFixture
 ) -> None:
@@ -238,7 +238,12 @@ def test_sysid_init_refuses_what_would_lose_the_model_or_write_a_config_that_can
     if case == "undriven":
         text = text[: text.index("<actuator>")] + text[text.index("</actuator>") + len("</actuator>") :]
     model.write_text(text)
-    out = {"the_model_itself": model, "not_yaml": tmp_path / "arm.txt", "undriven": tmp_path / "arm.yaml"}[case]
+    out = {
+        "the_model_itself": model,
+        "not_yaml": tmp_path / "arm.txt",
+        "yml": tmp_path / "arm.yml",  # Hydra finds .yaml alone: system=arm would be unknown
+        "undriven": tmp_path / "arm.yaml",
+    }[case]
     code = main([str(model), "--out", str(out), "--force"])
     assert code == 2
     err = capsys.readouterr().err

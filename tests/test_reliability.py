@@ -291,14 +291,34 @@ def test_a_diagnosis_of_a_calibrated_mjcf_in_its_own_folder_keeps_it(finished_ru
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert model.read_bytes() == text
     assert (tmp_path / "pendulum_calibrated_calibrated.xml").is_file()
+    # named so that its own calibrated MJCF would be the model it reads: refused before any work
+    proc = _cli(*again, "system.name=pendulum", module="harness.diagnose")
+    _one_line_error(proc, "this run writes pendulum_calibrated.xml, and that file is its input", "system.name")
+    assert model.read_bytes() == text
+
+
+def test_reference_models_given_for_a_robot_they_do_not_fit_are_refused(finished_run: Path, tmp_path: Path) -> None:
+    """The DFKI two-joint reference models named explicitly for a one-joint pendulum were dropped without a
+    word; `auto` (found beside the data) still skips them, as they belong to another robot's logs."""
+    model = REPO.parent / "shared" / "data" / "dfki_double_pendulum_c1" / "authors_identified"
+    given = f"diagnose.references=[{model / 'design_C.1_model_1.0.yml'}]"
+    data = f"data.path={finished_run / 'data.csv'}"
+    proc = _cli("system=pendulum", data, given, f"hydra.run.dir={tmp_path}", module="harness.diagnose")
+    _one_line_error(proc, "diagnose.references: the reference models are of the two-joint", "pendulum has 1 joint")
+    assert not (tmp_path / "diagnosis.json").exists()
 
 
 def test_a_run_that_would_write_over_its_input_is_refused_before_anything_is_replaced(tmp_path: Path) -> None:
-    """The last guard of `claim(inputs=...)`: an output of the run's own name that is the file it read is neither
-    retired nor replaced; writing it is refused and the previous outputs stay."""
+    """`claim(inputs=...)`: an output the run writes that is the file it read is refused before any work; one
+    that it only retires is kept, and if it writes it after all, the last guard refuses it when the outputs
+    are put in place, the previous outputs as they were."""
     (tmp_path / "model.xml").write_text("<mujoco/>")
     (tmp_path / "results.json").write_text("{}")
-    with claim(tmp_path, outputs=("model.xml", "results.json"), overwrite=True, inputs=[tmp_path / "model.xml"]) as f:
+    inputs, names = [tmp_path / "model.xml"], ("model.xml", "results.json")
+    with pytest.raises(RunFolderError, match=r"this run writes model\.xml, and that file is its input"):
+        with claim(tmp_path, outputs=names, overwrite=True, inputs=inputs):
+            pass
+    with claim(tmp_path, outputs=names, overwrite=True, inputs=inputs, writes=("results.json",)) as f:
         assert f.outputs == ("results.json",) and f.inputs == ("model.xml",)
         with pytest.raises(RunFolderError, match=r"would write model\.xml over the file it read"), f.staged() as stage:
             (stage / "model.xml").write_text("<mujoco><worldbody/></mujoco>")
@@ -568,6 +588,14 @@ def test_an_unknown_key_or_malformed_value_is_one_config_error() -> None:
     with pytest.raises(ConfigError, match=r"a value with = in it must be quoted: data\.path='/d/run=3\.csv'$"):
         check_command_line(["system=two_link", "data.path=/d/run=3.csv"], CONF, "diagnose")
     check_command_line(["system=two_link", "data.path='/d/run=3.csv'"], CONF, "diagnose")
+    with pytest.raises(ConfigError, match=r"Could not override 'diagnose\.nokey'"):  # beside a deletion (no =)
+        check_command_line(["~diagnose.window_s", "diagnose.nokey=1"], CONF, "diagnose")
+    # a system name with a folder in it: refused before Hydra makes outputs/${system.name}/... (sweeps too)
+    with pytest.raises(ConfigError, match=r"hydra\.launcher\.n_jobs=0: the number of jobs run at once"):
+        check_command_line(["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=0", "seed=0,1"], CONF, "config")
+    for argv in (["system.name=../x"], ["-m", "seed=0,1", "system.name=ok,my/arm"]):
+        with pytest.raises(ConfigError, match=r"system\.name='(\.\./x|my/arm)': it names the outputs"):
+            check_command_line(argv, CONF, "config")
 
 
 def test_a_misspelled_key_is_answered_with_the_key_meant_not_with_a_plus() -> None:

@@ -57,6 +57,20 @@ def test_a_failed_job_is_reported_and_the_others_finish(tmp_path: Path) -> None:
 def test_report_of_a_missing_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     assert main([str(tmp_path / "nope")]) == 2
     assert "sweep folder not found" in capsys.readouterr().err
+    (tmp_path / "a.csv").write_text("x\n")  # an existing file: said to be a file, not "not found"
+    assert main([str(tmp_path / "a.csv")]) == 2
+    assert "a.csv is a file, not a sweep folder" in capsys.readouterr().err
+
+
+def test_a_run_without_stds_is_reported_ok_with_no_max_z(tmp_path: Path) -> None:
+    """The gradient estimator gives no std, so every z is null: the report took max() of nothing and called
+    the finished run failed ("incomplete or corrupt")."""
+    sweep = tmp_path / "sweep"
+    _sweep(sweep, "estimator=wls,gradient")
+    assert main([str(sweep)]) == 0
+    rows = {r["estimator"]: r for r in report_rows(collect(sweep))}
+    assert rows["gradient"]["status"] == "ok" and rows["gradient"]["max_abs_z"] is None
+    assert rows["wls"]["max_abs_z"] > 0
 
 
 def test_a_killed_jobs_staging_folder_is_no_job_of_its_own(tmp_path: Path) -> None:

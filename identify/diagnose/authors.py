@@ -33,6 +33,8 @@ __all__ = [
     "load_author_model",
 ]
 
+# what a physical model of theirs has >= 0 (the gear ratio has a sign; the centres of mass r1, r2 may lie either side)
+_NON_NEGATIVE = ("I1", "I2", "Ir", "b1", "b2", "cf1", "cf2", "l2", "m1", "m2")
 AUTHOR_KEYS = ("I1", "I2", "Ir", "b1", "b2", "cf1", "cf2", "g", "gr", "l1", "l2", "m1", "m2", "r1", "r2")
 # the combinations their model is linear in (l1, g and gr are fixed by the design)
 AUTHOR_BASE_NAMES = ("I1 + m2 l1^2", "I2", "m2 r2", "m1 r1 + m2 l1", "Ir", "b1", "b2", "cf1", "cf2")
@@ -66,6 +68,12 @@ def load_author_model(path: Path) -> dict[str, float]:
             out[k] = math.nan
         if not math.isfinite(out[k]):
             raise DataError(f"{path}: parameter {k} is {raw[k]!r}, not a finite number")
+    negative = [k for k in _NON_NEGATIVE if out[k] < 0] + [k for k in ("g", "l1") if out[k] <= 0]
+    if negative:
+        raise DataError(
+            f"{path}: parameter {negative[0]} is {out[negative[0]]:g}, not physical (masses, lengths, inertias, "
+            "friction and gravity are >= 0, g and l1 > 0)"
+        )
     return out
 
 

@@ -131,7 +131,8 @@ def simulation_error(
         k = int(np.searchsorted(time, time[k] + n_step * dt, side="left"))
     if not starts:
         raise ValueError(
-            f"the record ({time[-1] - time[0]:.3f} s) is shorter than one window (window_s = {window_s} s)"
+            f"the record ({time[-1] - time[0]:.3f} s) is shorter than one re-started simulation window "
+            f"(diagnose.window_s = {window_s} s): give a shorter window"
         )
     simulated = starts
     if max_windows is not None and len(starts) > max_windows:  # evenly spread, the first and the last among them
