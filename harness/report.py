@@ -11,6 +11,7 @@ import argparse
 import csv
 import io
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -95,11 +96,15 @@ def report_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
             row["error"] = r["error"]
             rows.append(row)
             continue
+        file = "results.json" if r["kind"] == "run" else "diagnosis.json"
         try:
             row.update(_headline(r["kind"], p))
         except (KeyError, TypeError, ValueError, AttributeError) as err:
-            file = "results.json" if r["kind"] == "run" else "diagnosis.json"
             row.update(status="failed", error=f"{r['job']}/{file}: incomplete or corrupt ({type(err).__name__}: {err})")
+        # the tools write strict JSON (no NaN): a non-finite number is a file edited or written by something else
+        bad = [k for k, v in row.items() if isinstance(v, float) and not math.isfinite(v)]
+        if bad and row["status"] == "ok":
+            row.update(status="failed", error=f"{r['job']}/{file}: {bad[0]} is {row[bad[0]]}, not a finite number")
         rows.append(row)
     return rows
 

@@ -83,3 +83,27 @@ def test_a_killed_jobs_staging_folder_is_no_job_of_its_own(tmp_path: Path) -> No
     staged.mkdir()
     (staged / "results.json").write_text("{}")
     assert [r["job"] for r in collect(tmp_path)] == ["0"]
+
+
+def test_a_non_finite_number_in_a_jobs_file_fails_that_job(tmp_path: Path) -> None:
+    """The tools write strict JSON; a results.json with NaN (edited, or written by another tool) was listed as
+    an ok row showing `nan`."""
+    results = {
+        "system": "pendulum",
+        "estimator": "wls",
+        "excitation": {"name": "optimised", "harmonics": 5, "cond_XtX": 2.0, "cond_W_colnorm": 1.5, "limits_ok": True},
+        "base_parameters": [{"z": 0.5}],
+        "validation": {"torque_rms": {"swing": 0.01}},
+        "timing_s": {"setup": 0.1},
+    }
+    for job, cond in (("0_ok", "2.0"), ("1_nan", "NaN")):
+        (tmp_path / job / ".hydra").mkdir(parents=True)
+        (tmp_path / job / "results.json").write_text(
+            json.dumps(results).replace('"cond_XtX": 2.0', f'"cond_XtX": {cond}')
+        )
+    rows = {r["job"]: r for r in report_rows(collect(tmp_path))}
+    assert rows["0_ok"]["status"] == "ok"
+    assert (
+        rows["1_nan"]["status"] == "failed"
+        and rows["1_nan"]["error"] == "1_nan/results.json: cond_XtX is nan, not a finite number"
+    )
