@@ -72,6 +72,11 @@ def test_a_torque_dropped_to_zero_for_a_while_on_a_moving_joint_is_named() -> No
     short = tau.copy()
     short[1000:1090, 1] = 0.0  # 90 rows: under the 100 a dropout needs
     assert find_anomalies([_record(q, short)]) == []
+    # a light joint's torque within a few steps of a 0.001 N m sensor's resolution reads 0 for long stretches
+    coarse = tau.copy()
+    coarse[:, 1] = np.round(0.002 * np.sin(2 * np.pi * 0.1 * t) + rng.normal(0, 0.0005, 5000), 3)
+    coarse[1000:3000, 1] = 0.0
+    assert find_anomalies([_record(q, coarse)]) == []
 
 
 def test_a_clipped_command_is_named_even_when_the_measured_torque_is_not_clipped() -> None:

@@ -34,6 +34,7 @@ STILL_SLIDE_RANGE = 1e-3  # ... a slide whose position spans less than this [m]
 STUCK_FRACTION = 0.5  # a torque that is exactly zero on more than this share of rows is stuck at zero
 STUCK_RUN_SHARE = 0.05  # ... and so is one exactly zero over a run of this share of the rows (and `STUCK_RUN_MIN`)
 STUCK_RUN_MIN = 100  # rows, while its joint moves: a dropout, not a torque (noise never rests at exactly 0)
+STUCK_QUANTA = 10.0  # ... unless the torque's RMS is under this many steps of its resolution
 SATURATED_FRACTION = 0.002  # share of rows on the plateau at the largest |torque| that counts as saturation
 SATURATION_RUN = 3  # ... in a run of at least this many consecutive rows,
 SATURATION_EPISODES = 3  # ... or reached again and again: in at least this many separate runs
@@ -95,10 +96,15 @@ def _longest_run(mask: np.ndarray) -> int:
     return int(np.max(_runs(mask), initial=0))
 
 
-def _zero_while_moving(zero: np.ndarray, q: np.ndarray, moves: float) -> bool:
+def _zero_while_moving(zero: np.ndarray, q: np.ndarray, moves: float, tau: np.ndarray) -> bool:
     """Whether a torque is exactly 0 over a run of at least `STUCK_RUN_SHARE` of the rows (and `STUCK_RUN_MIN`)
     in which its joint moves (its position spans `moves`): a log that dropped the reading for a while (40 % of
-    a file so was called clean, its zeros fitted as the rigid body's). A joint at rest may read 0 for long."""
+    a file so was called clean, its zeros fitted as the rigid body's). A joint at rest may read 0 for long, and
+    so may a torque within a few steps of its sensor's resolution (RMS under `STUCK_QUANTA` of its quantum: a
+    light wrist joint of a Menagerie arm on a 0.001 N m sensor reads 0 on an eighth of its rows)."""
+    rest = tau[~zero]
+    if rest.size and np.sqrt(np.mean(rest**2)) < STUCK_QUANTA * _quantum(rest):
+        return False
     edges = np.flatnonzero(np.diff(np.concatenate([[0], zero.astype(np.int8), [0]])))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
         if stop - start >= max(STUCK_RUN_MIN, STUCK_RUN_SHARE * len(zero)) and _span(q[start:stop]) > moves:
@@ -210,7 +216,7 @@ def find_anomalies(
             tau = measured[:, j]
             zero = tau == 0.0
             moves = STILL_RANGE if hinge is None or hinge[j] else STILL_SLIDE_RANGE
-            if np.mean(zero) > STUCK_FRACTION or _zero_while_moving(zero, data.q[:, j], moves):
+            if np.mean(zero) > STUCK_FRACTION or _zero_while_moving(zero, data.q[:, j], moves, tau):
                 out.append(
                     Anomaly(
                         "torque_stuck_at_zero",
