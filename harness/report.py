@@ -16,6 +16,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import yaml
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
 from envs.dataset import atomic_write
 from harness.rundir import STAGING_PREFIX, failed_since_results
 
@@ -43,9 +47,18 @@ def collect(sweep: Path) -> list[dict[str, Any]]:
 
     jobs = sorted(found(".hydra") | found("results.json"))
     jobs += sorted(found("diagnosis.json") - set(jobs))
+    # a sweep re-run into its folder (overwrite=true) with fewer jobs leaves the earlier sweep's other jobs:
+    # Hydra writes multirun.yaml as a sweep starts and each job's .hydra/ after it
+    start = (sweep / "multirun.yaml").stat().st_mtime if (sweep / "multirun.yaml").is_file() else None
+    swept = _swept_values(sweep / "multirun.yaml") if start is not None else {}
     out = []
     for job in sorted(set(jobs)):
         record: dict[str, Any] = {"job": str(job.relative_to(sweep)) or ".", "overrides": _overrides(job)}
+        written = [f.stat().st_mtime for f in (job / ".hydra").glob("*.yaml")]  # rewritten in place by a new job
+        older = start is not None and bool(written) and max(written) < start - STALE_S
+        if older and _outside(record["overrides"], swept):  # both: a copied folder's times say nothing
+            out.append({**record, "kind": "?", "status": "stale", "error": STALE})
+            continue
         for name, kind in (("results.json", "run"), ("diagnosis.json", "diagnose")):
             if (job / name).is_file() and not failed_since_results(job):
                 try:
@@ -63,6 +76,39 @@ def collect(sweep: Path) -> list[dict[str, Any]]:
     if not out:
         raise FileNotFoundError(f"{sweep}: no job folders (with .hydra/, results.json or diagnosis.json) below it")
     return out
+
+
+STALE_S = 1.0  # [s] a job folder's .hydra/ this much older than the sweep's multirun.yaml is an earlier sweep's
+STALE = "an earlier sweep's job (its .hydra/ is older than this sweep's multirun.yaml): not counted"
+
+
+def _swept_values(multirun: Path) -> dict[str, set[str] | None]:
+    """Per key of the sweep's command line (multirun.yaml's hydra.overrides.task): the values it sweeps, None
+    where they are not a plain comma list (range(), glob(), ...: any value counts as the sweep's)."""
+    try:
+        task = OmegaConf.load(multirun).hydra.overrides.task
+    except (OSError, ValueError, KeyError, AttributeError, OmegaConfBaseException, yaml.YAMLError):
+        # an unreadable or foreign multirun.yaml: nothing to tell earlier jobs by
+        return {}
+    out: dict[str, set[str] | None] = {}
+    for item in task:
+        key, _, value = str(item).partition("=")
+        plain = "(" not in value and "[" not in value and "{" not in value
+        out[key] = {v.strip() for v in value.split(",")} if plain else None
+    return out
+
+
+def _outside(overrides: str, swept: dict[str, set[str] | None]) -> bool:
+    """Whether a job's overrides ("k=v k=v") hold a value of a swept key that the sweep does not sweep, or a key
+    the sweep does not set: a job of another command line."""
+    for item in overrides.split():
+        key, _, value = item.partition("=")
+        if key not in swept:
+            return True
+        values = swept[key]
+        if values is not None and value not in values:
+            return True
+    return False
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -146,11 +192,16 @@ def _fmt(v: Any) -> str:
 
 def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> None:
     """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all."""
+    stale = [r["job"] for r in rows if r["status"] == "stale"]
+    rows = [r for r in rows if r["status"] != "stale"]
+    records = None if records is None else [r for r in records if r["status"] != "stale"]
     columns = list(dict.fromkeys(k for row in rows for k in row))
     md = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     md += ["| " + " | ".join(_fmt(row.get(c)) for c in columns) + " |" for row in rows]
     n_failed = sum(r["status"] != "ok" for r in rows)
     md += ["", f"{len(rows)} jobs, {len(rows) - n_failed} ok, {n_failed} failed"]
+    if stale:
+        md += ["", f"Left out, from an earlier sweep in this folder: {', '.join(stale)}"]
     atomic_write(sweep / "report.md", lambda f: f.write("\n".join(md) + "\n"))
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=columns)
@@ -274,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sysid-report: error: cannot write the report into {args.sweep}: {err.strerror or err}", file=sys.stderr)
         return 2
     print((args.sweep / "report.md").read_text())
-    failed = [row for row in rows if row["status"] != "ok"]
+    failed = [row for row in rows if row["status"] not in ("ok", "stale")]
     for row in failed:
         print(f"sysid-report: job {row['job']} failed: {row['error']}", file=sys.stderr)
     return 1 if failed else 0  # the report is written either way; a script sees that jobs failed

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,15 @@ from harness.report import collect, main, report_rows
 from tests.conftest import rrd_has_blueprint, rrd_rows
 
 REPO = Path(__file__).resolve().parents[1]
+# the parts of a sysid-run results.json the report reads
+RESULTS = {
+    "system": "pendulum",
+    "estimator": "wls",
+    "excitation": {"name": "optimised", "harmonics": 5, "cond_XtX": 2.0, "cond_W_colnorm": 1.5, "limits_ok": True},
+    "base_parameters": [{"z": 0.5}],
+    "validation": {"torque_rms": {"swing": 0.01}},
+    "timing_s": {"setup": 0.1},
+}
 
 
 def _sweep(sweep: Path, *overrides: str, status: int = 0) -> subprocess.CompletedProcess:
@@ -88,18 +98,10 @@ def test_a_killed_jobs_staging_folder_is_no_job_of_its_own(tmp_path: Path) -> No
 def test_a_non_finite_number_in_a_jobs_file_fails_that_job(tmp_path: Path) -> None:
     """The tools write strict JSON; a results.json with NaN (edited, or written by another tool) was listed as
     an ok row showing `nan`."""
-    results = {
-        "system": "pendulum",
-        "estimator": "wls",
-        "excitation": {"name": "optimised", "harmonics": 5, "cond_XtX": 2.0, "cond_W_colnorm": 1.5, "limits_ok": True},
-        "base_parameters": [{"z": 0.5}],
-        "validation": {"torque_rms": {"swing": 0.01}},
-        "timing_s": {"setup": 0.1},
-    }
     for job, cond in (("0_ok", "2.0"), ("1_nan", "NaN")):
         (tmp_path / job / ".hydra").mkdir(parents=True)
         (tmp_path / job / "results.json").write_text(
-            json.dumps(results).replace('"cond_XtX": 2.0', f'"cond_XtX": {cond}')
+            json.dumps(RESULTS).replace('"cond_XtX": 2.0', f'"cond_XtX": {cond}')
         )
     rows = {r["job"]: r for r in report_rows(collect(tmp_path))}
     assert rows["0_ok"]["status"] == "ok"
@@ -107,3 +109,32 @@ def test_a_non_finite_number_in_a_jobs_file_fails_that_job(tmp_path: Path) -> No
         rows["1_nan"]["status"] == "failed"
         and rows["1_nan"]["error"] == "1_nan/results.json: cond_XtX is nan, not a finite number"
     )
+
+
+def test_an_earlier_sweeps_jobs_left_in_the_folder_are_not_counted(tmp_path: Path) -> None:
+    """A sweep of two jobs re-run into its folder with overwrite=true as a sweep of one left the earlier second
+    job, and the report counted it as this sweep's ("2 jobs, 2 ok"). A job whose .hydra/ is older than the
+    sweep's multirun.yaml is listed as left out."""
+    import os
+
+    for job, seed in (("0_pendulum", 5), ("1_pendulum", 1)):
+        (tmp_path / job / ".hydra").mkdir(parents=True)
+        (tmp_path / job / ".hydra" / "overrides.yaml").write_text(f"- system=pendulum\n- seed={seed}\n")
+        (tmp_path / job / "results.json").write_text(json.dumps(RESULTS))
+    (tmp_path / "multirun.yaml").write_text("hydra:\n  overrides:\n    task:\n    - system=pendulum\n    - seed=5\n")
+    now = (tmp_path / "multirun.yaml").stat().st_mtime
+    old = (now - 3600, now - 3600)
+    os.utime(tmp_path / "1_pendulum" / ".hydra" / "overrides.yaml", old)  # the earlier sweep's
+    os.utime(tmp_path / "0_pendulum" / ".hydra", old)  # a folder kept, its files rewritten by this sweep
+    # a job whose files look older than multirun.yaml (a folder copied file by file) but whose overrides are the
+    # sweep's is kept: the times alone do not make it an earlier sweep's
+    copy = tmp_path.parent / f"{tmp_path.name}_copy"
+    shutil.copytree(tmp_path, copy)
+    os.utime(copy / "0_pendulum" / ".hydra" / "overrides.yaml", old)
+    os.utime(copy / "multirun.yaml", (now, now))
+    assert [r["status"] for r in collect(copy)] == ["ok", "stale"]  # 0_pendulum's seed=5 is the sweep's
+    assert main([str(tmp_path)]) == 0
+    text = (tmp_path / "report.md").read_text()
+    assert "1 jobs, 1 ok, 0 failed" in text and "Left out, from an earlier sweep in this folder: 1_pendulum" in text
+    with (tmp_path / "report.csv").open() as f:
+        assert [row["job"] for row in csv.DictReader(f)] == ["0_pendulum"]
