@@ -257,21 +257,21 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     previous = _previous_mjcf_names(_output_dir(cfg), plant)
     outputs = ("diagnosis.rrd", *previous, *_mjcf_names(plant.name), "diagnosis.json")
     try:
-        logs = data_paths(cfg)
+        logs: list[Path] | None = data_paths(cfg)
     except DataError:  # raised again where the logs are read, in the claimed folder
-        logs = []
-    inputs = [plant.source or plant.path, *logs]
+        logs = None
+    inputs = [plant.source or plant.path, *(logs or [])]
     writes = [n for n in outputs if n not in previous]
     with claim(
         _output_dir(cfg), outputs=outputs, overwrite=bool(cfg.overwrite), inputs=inputs, writes=writes
     ) as folder:
-        return _run(cfg, plant, folder)
+        return _run(cfg, plant, folder, logs)
 
 
-def _run(cfg: DictConfig, plant: Plant, folder: RunFolder) -> dict[str, Any]:
+def _run(cfg: DictConfig, plant: Plant, folder: RunFolder, paths: list[Path] | None) -> dict[str, Any]:
     opts = cfg.diagnose
     out = folder.path
-    paths = data_paths(cfg)
+    paths = data_paths(cfg) if paths is None else paths  # None: finding them failed before the folder was claimed
     columns = OmegaConf.to_container(cfg.data.columns) if cfg.data.get("columns") is not None else None
     stage = _stages()
     stage(f"reading {len(paths)} file(s)")

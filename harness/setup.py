@@ -120,29 +120,18 @@ def _system_choice(cfg: DictConfig) -> str | None:
     return str(name) if name else None
 
 
-def system_model_path(cfg: DictConfig) -> str:
+def _model_path(value: str, folder: Path | None) -> str:
     """`system.mjcf` as a path or name to load: a relative path written in a system config file is relative to
-    that file's folder (as a data config's paths are to its own), one given on the command line to the current
-    directory; a built-in system's name stays a name."""
-    value = str(cfg.system.mjcf)
+    that file's `folder` (as a data config's paths are to its own), one given on the command line (`folder`
+    None) to the current directory; a built-in system's name stays a name."""
     p = Path(value).expanduser()
-    choice = _system_choice(cfg)
-    if p.is_absolute() or not p.suffix or choice is None:
-        return str(p)
-    folder = own_config_folder("system", choice, "mjcf", cfg.system.mjcf)
-    return str(p if folder is None else (folder / p).resolve())
-
-
-def _stale_name(choice: str, name: Any, mjcf: Any) -> bool:
-    """Whether `name` is the chosen system config's own while its model is not (`system=two_link
-    system.mjcf=other.xml`): that name is the config's model's, and the model given names itself."""
-    own_name = own_config_folder("system", choice, "name", name) is not None
-    return own_name and own_config_folder("system", choice, "mjcf", mjcf) is None
+    return str(p if p.is_absolute() or not p.suffix or folder is None else (folder / p).resolve())
 
 
 def load_system(cfg: DictConfig) -> Plant:
-    """The plant of `system.mjcf` (`system_model_path`), named `system.name` where that is set (on the command
-    line, or in a system config beside that config's own model).
+    """The plant of `system.mjcf` (`_model_path`), named `system.name` where that is set (on the command line, or
+    in a system config beside that config's own model: `system=two_link system.mjcf=other.xml` keeps the
+    config's name for its own model, and the model given names itself).
 
     Raises:
         ConfigError: the value names no model (an unknown system, a missing file or folder, a log): the key named.
@@ -152,9 +141,11 @@ def load_system(cfg: DictConfig) -> Plant:
     if name is not None:
         check_system_name(str(name))
     choice = _system_choice(cfg)
-    if name is not None and choice is not None and _stale_name(choice, name, cfg.system.mjcf):
-        name = None
-    path = system_model_path(cfg)
+    folder = own_config_folder("system", choice, "mjcf", cfg.system.mjcf) if choice is not None else None
+    if name is not None and choice is not None and folder is None:  # the model is not the config's own
+        if own_config_folder("system", choice, "name", name) is not None:  # ... and the name is the config's
+            name = None
+    path = _model_path(str(cfg.system.mjcf), folder)
     try:
         plant = load_plant(path)
     except ModelError:

@@ -86,10 +86,16 @@ class Anomaly:
         return f"{Path(self.source).name}: {self.joint} {what} ({numbers}){why}"
 
 
+def _run_bounds(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, stops) of the runs of consecutive True values of `mask` (each run is mask[start:stop])."""
+    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
 def _runs(mask: np.ndarray) -> np.ndarray:
     """Lengths of the runs of consecutive True values of `mask`."""
-    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
-    return np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    starts, stops = _run_bounds(mask)
+    return stops - starts
 
 
 def _longest_run(mask: np.ndarray) -> int:
@@ -105,11 +111,10 @@ def _zero_while_moving(zero: np.ndarray, q: np.ndarray, moves: float, tau: np.nd
     rest = tau[~zero]
     if rest.size and np.sqrt(np.mean(rest**2)) < STUCK_QUANTA * _quantum(rest):
         return False
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], zero.astype(np.int8), [0]])))
-    for start, stop in zip(edges[::2], edges[1::2], strict=True):
-        if stop - start >= max(STUCK_RUN_MIN, STUCK_RUN_SHARE * len(zero)) and _span(q[start:stop]) > moves:
-            return True
-    return False
+    least = max(STUCK_RUN_MIN, STUCK_RUN_SHARE * len(zero))
+    return any(
+        stop - start >= least and _span(q[start:stop]) > moves for start, stop in zip(*_run_bounds(zero), strict=True)
+    )
 
 
 def _quantum(x: np.ndarray) -> float:
