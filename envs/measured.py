@@ -679,7 +679,10 @@ def _resolve_columns(
             "with commas (or semicolons, or tabs) between the columns"
         )
     if missing:
-        raise DataError(f"{src}: missing column(s) {', '.join(missing)} (needed for {plant.name}); {listing}")
+        raise DataError(
+            f"{src}: missing column(s) {', '.join(missing)} (needed for {plant.name}); {listing}"
+            f"{_suggested_mapping(plant, header, spec)}"
+        )
     out: dict[str, _Column] = {}
     for key, (name, scale, offset) in spec.items():
         if name not in where:
@@ -709,6 +712,91 @@ def _resolve_columns(
                 f"a typo, or data of another system?"
             )
     return out, ignored
+
+
+# Column names of other logs (ROS joint_states exports, drivers' logs, Franka's tau_J, the DFKI pos_meas1): the word
+# that says what a column holds, words that say it is not the measurement, and words that prefer a column
+_KIND_WORDS = {
+    "q": {"q", "pos", "position", "positions", "qpos", "angle", "angles", "theta"},
+    "dq": {"dq", "qd", "qdot", "vel", "velocity", "velocities", "qvel", "omega", "speed"},
+    "tau": {"tau", "torque", "torques", "effort", "efforts", "trq"},
+    "time": {"time", "t", "timestamp", "stamp", "sec", "secs", "seconds"},
+}
+_COMMAND_WORDS = {"cmd", "command", "commanded", "con"}  # a torque sent, not measured: tau_cmd
+_NOT_MEASURED_WORDS = {  # set points, limits, other torques, accelerations ('q_d': Franka's desired q)
+    *"des desired ref reference target goal set setpoint fric ext err error max min limit offset d dd ddq acc".split(),
+    *_COMMAND_WORDS,
+}
+_MEASURED_WORDS = {"meas", "measured", "msr", "actual", "act", "j"}
+
+
+def _words(name: str) -> list[str]:
+    """A column name split into lower-case words and numbers: 'pos_meas1' -> pos, meas, 1; 'q[0]' -> q, 0."""
+    return re.findall(r"[a-z]+|[0-9]+", re.sub(r"([a-z])([A-Z])", r"\1_\2", name).lower())
+
+
+def _guess_columns(plant: Plant, header: list[str]) -> dict[str, str]:
+    """Our names -> the file's columns, guessed from the column names alone: a word for the quantity (`_KIND_WORDS`)
+    and either a joint's name or a number that counts the joints (0 or 1 based, in the model's joint order; torques
+    may count the actuated joints only). Columns of set points and commands are not measurements; among two
+    candidates a 'meas'/'actual' one is taken. A key that no column or several fit is left out."""
+    joints = list(plant.joint_names)
+    act = [n for j, n in enumerate(joints) if plant.actuated[j]]
+    joint_words = {n: [w for w in _words(n) if w != "joint"] for n in joints}
+    nameable = [n for n in joints if any(w.isalpha() for w in joint_words[n])]  # 'joint1' is counted, not named
+    found: dict[str, list[tuple[bool, str]]] = {}
+    numbered: dict[str, dict[int, list[tuple[bool, str]]]] = {}
+    for column in header:
+        words = _words(column)
+        command = bool(_COMMAND_WORDS & set(words))
+        measured = bool(_MEASURED_WORDS & set(words))
+        for kind, vocabulary in _KIND_WORDS.items():
+            if not vocabulary & set(words):
+                continue
+            if kind == "time":
+                if len(words) == 1 or (set(words) <= vocabulary | {"s", "sec"}):
+                    found.setdefault("time", []).append((True, column))
+                continue
+            if command and kind == "tau":
+                kind = "tau_cmd"
+            elif _NOT_MEASURED_WORDS & set(words) - _MEASURED_WORDS:
+                continue
+            named = [n for n in nameable if all(w in words for w in joint_words[n])]
+            if len(named) == 1:
+                found.setdefault(f"{kind}_{named[0]}", []).append((measured, column))
+            elif not named:
+                numbers = [int(w) for w in words if w.isdigit()]
+                if len(numbers) == 1:
+                    numbered.setdefault(kind, {}).setdefault(numbers[0], []).append((measured, column))
+    for kind, by_number in numbered.items():
+        order = sorted(by_number)
+        names = act if kind.startswith("tau") and len(order) == len(act) else joints
+        if len(order) == len(names) and order in (list(range(len(names))), list(range(1, len(names) + 1))):
+            for number, name in zip(order, names, strict=True):
+                found.setdefault(f"{kind}_{name}", []).extend(by_number[number])
+    out = {}
+    for key, candidates in found.items():
+        preferred = [c for m, c in candidates if m] if len(candidates) > 1 else [c for _, c in candidates]
+        if len(preferred) == 1:
+            out[key] = preferred[0]
+    return out
+
+
+def _suggested_mapping(plant: Plant, header: list[str], spec: Mapping[str, tuple[str, float, float]]) -> str:
+    """A column mapping for the command line guessed from the file's column names (`_guess_columns`), when it
+    names a column for every required name the file lacks; '' otherwise."""
+    guess = {k: c for k, c in _guess_columns(plant, header).items() if k not in spec}
+    targets = _targets(plant)
+    lacking = [k for k, required in targets.items() if required and k not in spec]
+    if not lacking or any(k not in guess for k in lacking) or len(set(guess.values())) < len(guess):
+        return ""
+    mapping = {k: guess[k] for k in targets if k in guess}
+    for prefix in ("dq_", "tau_cmd_"):
+        keys = [k for k in targets if k.startswith(prefix)]
+        if not all(k in mapping or k in spec for k in keys):
+            mapping = {k: v for k, v in mapping.items() if not k.startswith(prefix)}
+    packed = ",".join(f"{k}:{json.dumps(c)}" for k, c in mapping.items())
+    return f"; the column names suggest the mapping (check it) '++data.columns={{{packed}}}'"
 
 
 def _mapping_specs(plant: Plant, columns: Mapping[str, Any] | None, src: str) -> dict[str, tuple[str, float, float]]:

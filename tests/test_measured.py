@@ -22,6 +22,7 @@ from envs.dataset import Dataset, write_csv
 from envs.measured import read_many, read_measured
 from envs.split import split_train_validation
 from identify.excitation_check import check_excitation, excitation_report
+from tests.conftest import SHARED_ROBOTS
 
 CONF_DATA = Path(__file__).resolve().parents[1] / "conf" / "data"
 FS = 500.0
@@ -127,6 +128,75 @@ def test_missing_column_is_named(tmp_path: Path, plant: Plant) -> None:
     del cols["tau_elbow"]
     with pytest.raises(DataError, match=r"missing\.csv: missing column\(s\) tau_elbow .*its columns are: time"):
         read_measured(write(tmp_path / "missing.csv", cols), plant)
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        {"q": "position_{}", "dq": "velocity_{}", "tau": "effort_{}"},  # a ROS joint_states export, 0-based
+        {"q": "pos_meas{}", "dq": "vel_meas{}", "tau": "tau_meas{}", "tau_cmd": "tau_con{}", "des": "pos_des{}"},
+        {"q": "q[{}]", "tau": "tau_J{}", "des": "q_d{}"},  # brackets need quoting; Franka's desired q_d is no q
+        {"q": "{name}_pos", "tau": "{name}_effort", "tau_cmd": "{name}_effort_cmd"},  # by joint name
+    ],
+)
+def test_a_mapping_guessed_from_the_column_names_is_suggested_and_reads_the_file(
+    tmp_path: Path, plant: Plant, names: dict[str, str]
+) -> None:
+    """A log whose columns are named otherwise (indexed or by joint) gets a mapping to paste: parsed as Hydra
+    parses the command line, it reads the file into what the measured-data format gives."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    cols = table()
+    cols["tau_cmd_shoulder"], cols["tau_cmd_elbow"] = cols["tau_shoulder"] + 0.01, cols["tau_elbow"] - 0.01
+    base = 0 if "position_{}" in names.values() else 1
+    renamed = {"time": cols["time"]}
+    for kind, pattern in names.items():
+        for j, joint in enumerate(plant.joint_names):
+            source = cols[f"{kind}_{joint}"] if kind != "des" else cols[f"q_{joint}"] + 0.5
+            renamed[pattern.format(j + base, name=joint)] = source
+    with pytest.raises(DataError, match=r"missing column\(s\) q_shoulder.*suggest the mapping") as caught:
+        read_measured(write(tmp_path / "other.csv", renamed), plant)
+    override = re.search(r"'(\+\+data\.columns=.*)'", str(caught.value))
+    assert override is not None, str(caught.value)
+    mapping = OverridesParser.create().parse_overrides([override.group(1)])[0].value()
+    assert set(mapping) == {f"{k}_{j}" for k in names if k != "des" for j in plant.joint_names}
+    guessed = read_measured(tmp_path / "other.csv", plant, columns=mapping)
+    kept = {"time": cols["time"]} | {
+        f"{k}_{j}": cols[f"{k}_{j}"] for k in names if k != "des" for j in plant.joint_names
+    }
+    reference = read_measured(write(tmp_path / "format.csv", kept), plant)
+    np.testing.assert_array_equal(guessed.q, reference.q)
+    np.testing.assert_array_equal(guessed.tau, reference.tau)
+    for optional in ("dq", "tau_cmd"):
+        if optional in names:
+            np.testing.assert_array_equal(getattr(guessed, optional), getattr(reference, optional))
+
+
+@pytest.mark.skipif(
+    not (SHARED_ROBOTS / "panda_nohand.xml").is_file(), reason="../shared/robots/ is not beside the project"
+)
+@pytest.mark.parametrize("base", [0, 1])
+def test_joints_named_by_number_are_counted_in_the_models_order(base: int) -> None:
+    """The Panda's joint1..joint7 are counted like its columns, whether the log counts from 0 or from 1: the
+    number in 'joint1' does not name position_1 of a 0-based log."""
+    from envs.measured import _guess_columns
+
+    panda = load_plant(str(SHARED_ROBOTS / "panda_nohand.xml"))
+    header = ["time"] + [f"{kind}_{j + base}" for kind in ("position", "effort") for j in range(panda.nv)]
+    guess = _guess_columns(panda, header)
+    for j, joint in enumerate(panda.joint_names):
+        assert (guess[f"q_{joint}"], guess[f"tau_{joint}"]) == (f"position_{j + base}", f"effort_{j + base}")
+
+
+def test_no_mapping_is_suggested_where_the_names_do_not_say(tmp_path: Path, plant: Plant) -> None:
+    cols = {"time": table()["time"], "a": table()["q_shoulder"], "b": table()["q_elbow"]}
+    cols |= {"c1": table()["tau_shoulder"], "c2": table()["tau_elbow"]}
+    with pytest.raises(DataError, match=r"its columns are: time, a, b, c1, c2$"):
+        read_measured(write(tmp_path / "plain.csv", cols), plant)
+    two = {"time": cols["time"], "pos1": cols["a"], "pos2": cols["b"], "pos3": cols["b"]}  # three for two joints
+    two |= {"tau1": cols["c1"], "tau2": cols["c2"]}
+    with pytest.raises(DataError, match=r"its columns are: time, pos1, pos2, pos3, tau1, tau2$"):
+        read_measured(write(tmp_path / "three.csv", two), plant)
 
 
 def test_partial_optional_columns_are_refused(tmp_path: Path, plant: Plant) -> None:
