@@ -284,6 +284,29 @@ def _name(m: mujoco.MjModel, kind: mujoco.mjtObj, i: int) -> str:
     return mujoco.mj_id2name(m, kind, i) or f"{kind.name.removeprefix('mjOBJ_').lower()}{i}"
 
 
+def _tendons(m: mujoco.MjModel) -> str:
+    """Each tendon by name, with the joints it spans (a fixed tendon) and the actuator that drives it."""
+    out = []
+    for t in range(m.ntendon):
+        wraps = range(int(m.tendon_adr[t]), int(m.tendon_adr[t] + m.tendon_num[t]))
+        joints = [
+            _name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.wrap_objid[w]))
+            for w in wraps
+            if m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT
+        ]
+        drivers = [
+            _name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
+            for a in range(m.nu)
+            if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_TENDON and m.actuator_trnid[a, 0] == t
+        ]
+        what = f"over joint(s) {', '.join(joints)}" if joints else "spatial"
+        out.append(
+            f"{_name(m, mujoco.mjtObj.mjOBJ_TENDON, t)!r} ({what}"
+            + (f", driven by actuator {', '.join(repr(d) for d in drivers)})" if drivers else ")")
+        )
+    return f"tendon{'s' if len(out) > 1 else ''} {', '.join(out)}"
+
+
 def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     """Refuse what the rigid-body regressor does not model: other joint types and joint couplings."""
     if m.njnt == 0:
@@ -296,13 +319,29 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     ]
     if bad:
         raise ModelError(f"{path}: only hinge and slide joints are supported (no free or ball joints); found {bad}")
-    if m.neq:
+    active = [e for e in range(m.neq) if m.eq_active0[e]]  # an inactive one applies no force unless a user turns it on
+    if active:
+        named = [
+            f"{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e)!r} ({mujoco.mjtEq(m.eq_type[e]).name[5:].lower()})"
+            for e in active
+        ]
         raise ModelError(
-            f"{path}: {m.neq} equality constraint(s) couple joints or close a chain; closed chains and coupled "
-            "joints are not supported (remove the <equality> elements)"
+            f"{path}: equality constraint(s) {', '.join(named)} couple joints or close a chain; closed chains and "
+            "coupled joints are not supported (remove the <equality> elements)"
         )
     if m.ntendon:
-        raise ModelError(f"{path}: {m.ntendon} tendon(s) couple joints; tendons are not supported")
+        raise ModelError(f"{path}: {_tendons(m)}: tendons are not supported; drive each joint by its own actuator")
+    for kind in ("damping", "armature"):  # MuJoCo 4: on the transmission, gear^2 times it on the joint
+        given = np.asarray(getattr(m, f"actuator_{kind}", np.zeros(m.nu)), dtype=float)
+        values = given.reshape(m.nu, -1)[:, 0] if given.size else np.zeros(m.nu)
+        if np.any(values != 0):
+            a = int(np.flatnonzero(values)[0])
+            actuator = _name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
+            raise ModelError(
+                f"{path}: actuator {actuator!r} has {kind}={values[a]:g} (an actuator's "
+                f"{kind}, gear^2 times it on the joint); the harness reads {kind} from the joints: give its joint "
+                f'{kind}="{values[a] * m.actuator_gear[a, 0] ** 2:g}" more and remove it from the actuator'
+            )
     if np.any(m.body_gravcomp != 0):
         bodies = [_name(m, mujoco.mjtObj.mjOBJ_BODY, int(b)) for b in np.flatnonzero(m.body_gravcomp)]
         raise ModelError(f"{path}: gravity compensation (gravcomp) on bodies {bodies} is not supported")

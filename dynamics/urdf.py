@@ -48,6 +48,12 @@ def _stripped(path: Path) -> ET.Element:
     if root.tag != "robot":
         raise ModelError(f"{path}: not a URDF (its root element is <{root.tag}>, not <robot>)")
     for joint in root.iter("joint"):
+        if joint.get("type") == "planar":  # MuJoCo makes it two slides and a hinge, with no effort limit to drive them
+            raise ModelError(
+                f"{path}: joint {joint.get('name')!r} is planar (a link that moves freely in a plane, a mobile base): "
+                "only revolute, continuous, prismatic and fixed joints are supported; make it fixed to identify the "
+                "arm on it"
+            )
         mimic = joint.find("mimic")
         if mimic is not None:  # MuJoCo makes it an <equality>, which the refusal would name in a temporary MJCF
             raise ModelError(

@@ -108,6 +108,11 @@ def _centre(limits: Limits) -> np.ndarray:
 def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_motion_rad: float = 0.02) -> FourierDesign:
     """Scale a position design's amplitudes to the largest that keeps every limit on a dense grid.
 
+    One factor for every joint keeps the shape's relative amplitudes, bound by every limit, among joints of one
+    unit. Ranges in metres and in radians do not compare: the slides and the hinges each take the factor their own
+    ranges allow (a gripper's 4 cm slide, a SCARA's 20 cm lift beside hinges of +-2.5 rad do not hold the
+    hinges to a few hundredths of a radian), then one factor for all bound by the speeds, accelerations and torques.
+
     Raises:
         InfeasibleExcitationError: the offset already breaks a limit, or the limits leave less than
             `min_motion_rad` of motion on every joint (the message names the binding bound).
@@ -119,17 +124,25 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
     dev = shape.evaluate(t)[0] - shape.q0
     up, down = np.max(dev, axis=0), np.max(-dev, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.minimum((limits.q_max - shape.q0) / up, (shape.q0 - limits.q_min) / down)  # (n,) per joint
         bounds = {
-            "q": np.min(np.concatenate([(limits.q_max - shape.q0) / up, (shape.q0 - limits.q_min) / down])),
+            "q": float(np.nanmin(room, initial=np.inf)),
             "dq": np.min(limits.dq_max / dq_unit),
             "ddq": np.min(limits.ddq_max / ddq_unit),
         }
     if bounds["q"] < 0:
         raise InfeasibleExcitationError(f"offset q0 = {shape.q0} lies outside the joint range (binding: q)", bound="q")
-    s_hi = float(min(bounds.values()))
+    common = float(min(bounds["dq"], bounds["ddq"]))
+    room = np.where(np.isnan(room), np.inf, room)
+    units = np.array(plant.position_units)
+    by_unit = np.array([np.min(room[units == u]) for u in units])  # (n,) the room of the joints of each one's unit
+    per_joint = np.minimum(by_unit, common)
+    if not np.all(np.isfinite(per_joint)):  # a unit with no range, speed or acceleration limit: as the others
+        per_joint = np.where(np.isfinite(per_joint), per_joint, np.max(per_joint[np.isfinite(per_joint)], initial=0.0))
     binding = min(bounds, key=lambda k: bounds[k])
 
-    s_hi *= 1.0 - 1e-6  # stay strictly inside: the continuous maximum may fall between grid points
+    per_joint = per_joint * (1.0 - 1e-6)  # stay strictly inside: the continuous maximum may fall between grid points
+    shape = shape.scaled(per_joint)
     t_tau = grid(shape, 1000)
 
     def torque_ratio(s: float) -> float:
@@ -142,18 +155,19 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
             "(binding: tau)",
             bound="tau",
         )
-    if torque_ratio(s_hi) > 1.0:
-        binding, lo, hi = "tau", 0.0, s_hi
+    s_tau = 1.0
+    if torque_ratio(1.0) > 1.0:
+        binding, lo, hi = "tau", 0.0, 1.0
         for _ in range(30):
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if torque_ratio(mid) <= 1.0 else (lo, mid)
-        s_hi = lo * 0.995  # margin for torque peaks between the grid's points
-    motion = float(np.max(np.maximum(up, down)) * s_hi)
+        s_tau = lo * 0.995  # margin for torque peaks between the grid's points
+    motion = float(np.max(np.maximum(up, down) * per_joint) * s_tau)
     if motion < min_motion_rad:
         raise limits.infeasible(
             f"the limits allow at most {motion:.3g} {_units(plant)} of motion (< {min_motion_rad})", {binding: 1.0}
         )
-    return shape.scaled(s_hi)
+    return shape.scaled(s_tau)
 
 
 def torque_rollout(

@@ -78,9 +78,12 @@ class FourierDesign:
             np.hstack([-s * wl, c * wl]),
         )
 
-    def scaled(self, factor: float) -> FourierDesign:
-        """The same shape with every amplitude multiplied by `factor` (offsets kept)."""
-        return FourierDesign(self.base_freq_hz, self.a * factor, self.b * factor, self.q0)
+    def scaled(self, factor: float | np.ndarray) -> FourierDesign:
+        """The same shape with every amplitude multiplied by `factor`, one number or (n,) one per joint (offsets
+        kept)."""
+        f = np.asarray(factor, dtype=float)
+        f = f[:, None] if f.ndim == 1 else f
+        return FourierDesign(self.base_freq_hz, self.a * f, self.b * f, self.q0)
 
     def to_vector(self) -> np.ndarray:
         """Flat parameter vector [a (n*H), b (n*H), q0 (n)]."""

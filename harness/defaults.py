@@ -95,7 +95,9 @@ def resolve_system(system: DictConfig, plant: Plant) -> tuple[DictConfig, dict[s
         "limits.acceleration": DEFAULT_ACCELERATION,
         "sensor.sample_rate_hz": _sample_rate(plant),
         "sensor.sigma_tau": _rounded(NOISE_FRACTION * scale * plant.actuated),
-        "sensor.tau_resolution": float(f"{float(np.min(scale[plant.actuated], initial=1.0)) / 2**11:.3g}"),
+        "sensor.tau_resolution": float(f"{float(np.min(scale[plant.actuated])) / 2**11:.3g}")
+        if any(plant.actuated)
+        else 0.0,
     }
     assumed: dict[str, Any] = {}
     for key, value in fill.items():

@@ -202,7 +202,8 @@ def _sliding(cfg: DictConfig, model: ParameterModel, states: States) -> States:
     if kept < MIN_SLIDING_ROWS:
         raise ConfigError(
             f"system.friction_min_speed={speed}: only {kept} of {trusted} samples have every joint moving faster "
-            f"(per joint: {np.round(bound, 4).tolist()}); lower it, or null to keep every sample"
+            f"(per joint: {', '.join(f'{n} {b:.4g}' for n, b in zip(model.plant.joint_names, bound, strict=True))}); "
+            "lower it, or null to keep every sample"
         )
     return dataclasses.replace(states, valid=states.valid & moving)
 

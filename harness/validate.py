@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import mujoco
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dynamics.plant import Plant
@@ -218,10 +219,13 @@ def check_driven(plant: Plant) -> None:
                 "torque to the joint, so nothing can excite it: give it a non-zero gear (1 for a direct drive)"
             )
     if not any(bool(a) for a in plant.actuated):
+        first = plant.joint_names[0]
+        unnamed = mujoco.mj_id2name(plant.mj_model, mujoco.mjtObj.mjOBJ_JOINT, 0) is None  # the harness's name for it
         raise ConfigError(
             f"{plant.path}: no joint of {plant.name} is driven (the model has no <actuator> on its joints), so "
-            f"nothing can excite it: add a motor per joint, e.g. <actuator><motor joint='{plant.joint_names[0]}' "
-            "ctrlrange='-5 5'/></actuator>"
+            "nothing can excite it: add a motor per joint, e.g. "
+            + (f"name the first joint (<joint name='{first}' ...>) and add " if unnamed else "")
+            + f"<actuator><motor joint='{first}' ctrlrange='-5 5'/></actuator>"
         )
     for a in plant.actuation.actuators:
         if a.gain == 0:  # whatever its ranges (none: an infinite limit), its ctrl moves nothing

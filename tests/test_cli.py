@@ -308,3 +308,21 @@ def test_a_required_key_set_with_the_force_prefix_is_accepted() -> None:
 
     check_command_line(["system=two_link", "data=csv", "++data.path=log.csv"], REPO / "conf", "diagnose")
     check_command_line(["system=auto", "++system.mjcf=mjcf/two_link.xml"], REPO / "conf", "config")
+
+
+def test_a_sliding_rule_that_keeps_too_few_rows_names_each_joints_bound() -> None:
+    """The refusal listed the bounds as a bare list, with no joint names (a URDF's three planar joints)."""
+    from omegaconf import OmegaConf
+
+    from dynamics.plant import load_plant
+    from dynamics.regressor import ParameterModel
+    from harness.run import _sliding
+    from identify.derivatives import States
+
+    plant = load_plant("two_link")
+    n = 200
+    slow = np.full((n, plant.nv), 0.001)
+    states = States(np.zeros((n, plant.nv)), slow, np.zeros((n, plant.nv)), np.ones(n, bool))
+    cfg = OmegaConf.create({"system": {"friction_min_speed": 0.05}})
+    with pytest.raises(ConfigError, match=r"per joint: shoulder 0\.05, elbow 0\.05\)"):
+        _sliding(cfg, ParameterModel(plant, ("coulomb_friction",)), states)

@@ -54,3 +54,22 @@ def test_slurm_launcher_config_composes() -> None:
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "SlurmLauncher" in proc.stdout and "partition: cpu" in proc.stdout
+
+
+def test_a_robots_torque_resolution_is_its_smallest_torque_scale_over_2_to_the_11(tmp_path: Path) -> None:
+    """It was never above 1/2048 N m: the minimum took 1 N m as one of the scales."""
+    from omegaconf import OmegaConf
+
+    from dynamics.plant import plant_from_xml
+    from harness.defaults import resolve_system, torque_scale
+
+    xml = """<mujoco model="gantry"><compiler angle="radian"/><worldbody><body name="a"><joint name="x" type="slide"
+      axis="1 0 0" range="-0.5 0.5"/><geom type="box" size="0.05 0.05 0.05" mass="2"/><body name="b">
+      <joint name="r" axis="0 0 1" range="-2 2"/><geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02" mass="0.5"/>
+      </body></body></worldbody><actuator><motor joint="x" ctrlrange="-20 20"/><motor joint="r" ctrlrange="-5 5"/>
+      </actuator></mujoco>"""
+    plant = plant_from_xml(xml, "gantry", tmp_path)
+    auto = OmegaConf.load(CONF_DIR / "system" / "auto.yaml")
+    system, assumed = resolve_system(auto, plant)
+    assert list(torque_scale(plant)) == [20.0, 5.0]
+    assert system.sensor.tau_resolution == assumed["sensor.tau_resolution"] == pytest.approx(5.0 / 2**11, rel=1e-3)

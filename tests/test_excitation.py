@@ -295,3 +295,32 @@ def test_a_slide_with_no_room_is_refused_in_metres(tmp_path) -> None:  # type: i
     limits = limits_for(plant, velocity=0.5, acceleration=5.0, range_margin=0.0)
     with pytest.raises(InfeasibleExcitationError, match=r"the limits allow at most 0\.00\d+ m of motion \(< 0\.02\)"):
         default_design(plant, limits, harmonics=3, base_freq_hz=0.2)
+
+
+@pytest.mark.parametrize("stroke", [0.04, 0.2])  # a gripper's finger; a SCARA's lift
+def test_a_short_slide_does_not_hold_the_hinges_to_its_stroke(tmp_path, stroke: float) -> None:  # type: ignore[no-untyped-def]
+    """One factor for every joint held two hinges of +-2 rad to the slide's few centimetres (the 4 cm finger
+    was refused: at most 0.018 of motion); ranges in metres and in radians do not compare."""
+    from dynamics.plant import plant_from_xml
+
+    def arm(slide: bool) -> str:
+        finger = f"""<body name="finger" pos="0 0 -0.2"><joint name="f" type="slide" axis="1 0 0" range="0 {stroke}"/>
+          <inertial pos="0 0 -0.02" mass="0.05" diaginertia="1e-5 1e-5 1e-5"/></body>"""
+        return f"""<mujoco model="arm"><compiler angle="radian"/><worldbody><body name="l1" pos="0 0 0.5">
+          <joint name="j1" axis="0 1 0" range="-2 2"/><inertial pos="0 0 -0.1" mass="1" diaginertia="0.01 0.01 0.002"/>
+          <body name="l2" pos="0 0 -0.2"><joint name="j2" axis="0 1 0" range="-2 2"/>
+          <inertial pos="0 0 -0.1" mass="0.5" diaginertia="0.005 0.005 0.001"/>{finger if slide else ""}</body></body>
+          </worldbody><actuator><motor joint="j1" ctrlrange="-10 10"/><motor joint="j2" ctrlrange="-5 5"/>
+          {'<motor joint="f" ctrlrange="-20 20"/>' if slide else ""}</actuator></mujoco>"""
+
+    designs = {}
+    for slide in (False, True):
+        plant = plant_from_xml(arm(slide), f"arm_{slide}", tmp_path)
+        limits = limits_for(plant, velocity=3.0, acceleration=30.0, range_margin=0.05)
+        designs[slide] = (default_design(plant, limits, harmonics=5, base_freq_hz=0.2), limits)
+    hinges = np.abs(designs[False][0].a[:2]).sum(axis=1)
+    with_slide, limits = designs[True]
+    np.testing.assert_allclose(np.abs(with_slide.a[:2]).sum(axis=1), hinges, rtol=1e-6)  # as without the finger
+    q = with_slide.evaluate(grid(with_slide, 4000))[0]
+    assert np.ptp(q[:, 0]) > 0.5 and np.all(q >= limits.q_min - 1e-9) and np.all(q <= limits.q_max + 1e-9)
+    assert np.ptp(q[:, 2]) > 0.5 * stroke  # the finger moves over its own stroke

@@ -197,15 +197,47 @@ def test_disabled_springs_and_dampers_are_left_out(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        ('<equality><joint joint1="j1" joint2="j2"/></equality>', "equality constraint"),
-        ('<tendon><fixed name="t"><joint joint="j1" coef="1"/><joint joint="j2" coef="1"/></fixed></tendon>', "tendon"),
+        ('<equality><joint name="couple" joint1="j1" joint2="j2"/></equality>', r"constraint\(s\) 'couple' \(joint\)"),
+        (
+            '<tendon><fixed name="t"><joint joint="j1" coef="1"/><joint joint="j2" coef="1"/></fixed></tendon>'
+            '<actuator><motor name="pull" tendon="t" ctrlrange="-1 1"/></actuator>',
+            r"tendon 't' \(over joint\(s\) j1, j2, driven by actuator 'pull'\): tendons are not supported",
+        ),
     ],
 )
-def test_couplings_are_refused(tmp_path: Path, extra: str, message: str) -> None:
+def test_couplings_are_refused_by_name(tmp_path: Path, extra: str, message: str) -> None:
     xml = _write_form("diaginertia_quat", tmp_path).read_text().replace("</mujoco>", extra + "</mujoco>")
     path = tmp_path / "coupled.xml"
     path.write_text(xml)
     with pytest.raises(ModelError, match=message):
+        load_plant(path)
+
+
+def test_an_inactive_equality_applies_no_force_and_is_no_coupling(tmp_path: Path) -> None:
+    """MuJoCo applies an equality with active="false" only once a user turns it on; it was refused unnamed."""
+    xml = _write_form("diaginertia_quat", tmp_path).read_text()
+    extra = '<equality><joint name="couple" joint1="j1" joint2="j2" active="false"/></equality>'
+    path = tmp_path / "inactive.xml"
+    path.write_text(xml.replace("</mujoco>", extra + "</mujoco>"))
+    plant = load_plant(path)
+    q, dq, ddq = random_states(plant, np.random.default_rng(3), 10)
+    np.testing.assert_allclose(
+        joint_torque(plant, q, dq, ddq, coulomb=False)[0], inverse_dynamics(plant.mj_model, q, dq, ddq), atol=1e-8
+    )
+
+
+@pytest.mark.parametrize("kind", ["damping", "armature"])
+def test_an_actuators_own_damping_or_armature_is_named_with_the_joints_value(tmp_path: Path, kind: str) -> None:
+    """MuJoCo 4's actuator damping and armature (gear^2 times it on the joint) were refused as an unnamed
+    'feature the harness does not reproduce'."""
+    xml = (
+        '<mujoco><compiler angle="radian"/><worldbody><body name="l1" pos="0 0 0.4"><joint name="j1" axis="0 1 0" '
+        'range="-2 2"/><geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.03"/></body></worldbody>'
+        f'<actuator><motor name="m1" joint="j1" gear="3" ctrlrange="-5 5" {kind}="0.02"/></actuator></mujoco>'
+    )
+    path = tmp_path / f"{kind}.xml"
+    path.write_text(xml)
+    with pytest.raises(ModelError, match=rf"actuator 'm1' has {kind}=0\.02 .* give its joint {kind}=\"0\.18\" more"):
         load_plant(path)
 
 
@@ -245,6 +277,9 @@ def test_a_model_without_joints_is_refused_and_one_without_actuators_cannot_be_r
     plant = load_plant(loose)  # a passive model is fine for measured data ...
     with pytest.raises(ConfigError, match=r"loose.xml: no joint of loose is driven .*<motor joint='j' "):
         check_driven(plant)  # ... but a simulated run has nothing to excite it with
+    loose.write_text(loose.read_text().replace('<joint name="j" ', "<joint "))
+    with pytest.raises(ConfigError, match=r"name the first joint \(<joint name='joint0' ...>\) and add <actuator>"):
+        check_driven(load_plant(loose))  # the harness's own name for an unnamed joint is no name in the file
 
 
 def test_joints_whose_data_columns_would_clash_are_refused(tmp_path: Path) -> None:

@@ -321,6 +321,19 @@ def test_a_urdf_mimic_joint_is_named_in_the_urdfs_terms(tmp_path: Path) -> None:
         load_plant(urdf)
 
 
+def test_a_urdf_planar_joint_is_refused_by_name(tmp_path: Path) -> None:
+    """MuJoCo turns a planar joint (a mobile base) into two slides and a hinge, which the harness drove with
+    unlimited motors; the run then failed on a per-joint list without joint names."""
+    urdf = tmp_path / "rover.urdf"
+    urdf.write_text(
+        '<robot name="rover"><link name="world"/><link name="base"><inertial><mass value="2"/>'
+        '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+        '<joint name="drive" type="planar"><parent link="world"/><child link="base"/></joint></robot>'
+    )
+    with pytest.raises(ModelError, match=r"rover\.urdf: joint 'drive' is planar .* make it fixed"):
+        load_plant(urdf)
+
+
 _INERTIAL = (
     '<inertial><origin xyz="{0}"/><mass value="{1}"/>'
     '<inertia ixx="0.002" iyy="0.002" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>'
