@@ -7,7 +7,9 @@ killed joblib worker ends the whole sweep with `TerminatedWorkerError`). The chi
 out-of-memory killer first (`oom_score_adj` 1000), so that the job, not the worker, is the one killed.
 
 `SweepStatus` (a Hydra callback, set in the configs' `hydra.callbacks`) prints which jobs failed when the sweep
-ends and makes its exit status 1 if any did.
+ends and makes its exit status 1 if any did, or if jobs shared one folder (a `hydra.sweep.subdir` that does not
+tell them apart: each job's files overwrote the other's, and one folder of results stood for several jobs). Each
+job notes its folder in the sweep's `.sysid_jobs/` as it starts (`JOBS_DIR`), in whatever process runs it.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import contextlib
 import json
 import multiprocessing
 import os
+import shutil
 import signal
 import sys
 import traceback
@@ -25,11 +28,14 @@ from types import FrameType
 from typing import Any
 
 from hydra.experimental.callback import Callback
+from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from harness.rundir import RESULTS_FILES, clean_stale_temporaries, failed_since_results
 
-__all__ = ["SweepStatus", "failed_jobs", "run_isolated"]
+__all__ = ["JOBS_DIR", "SweepStatus", "failed_jobs", "run_isolated", "shared_folders"]
+
+JOBS_DIR = ".sysid_jobs"  # in a sweep folder: a file per job, named by its number, holding the job's folder
 
 
 def _child(work: Callable[[Any], Any], cfg: Any, out: Path, label: str) -> None:
@@ -103,17 +109,45 @@ def failed_jobs(sweep: Path) -> list[tuple[str, str]]:
     return out
 
 
+def shared_folders(sweep: Path) -> dict[str, list[int]]:
+    """The job folders of `sweep` that more than one job of its last run wrote into: folder -> job numbers."""
+    by_folder: dict[str, list[int]] = {}
+    for note in sorted(Path(sweep, JOBS_DIR).glob("*")):
+        with contextlib.suppress(OSError, ValueError):
+            by_folder.setdefault(note.read_text().strip(), []).append(int(note.name))
+    return {folder: sorted(jobs) for folder, jobs in by_folder.items() if len(jobs) > 1}
+
+
 class SweepStatus(Callback):
-    """At the end of a multirun: list the failed jobs and exit with status 1 if there are any."""
+    """At the end of a multirun: list the failed jobs, and the jobs that shared a folder, and exit with status 1 if
+    there are any."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        shutil.rmtree(Path(str(config.hydra.sweep.dir), JOBS_DIR), ignore_errors=True)  # an earlier sweep's notes
+
+    def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if config.hydra.mode != RunMode.MULTIRUN:
+            return
+        notes = Path(str(config.hydra.sweep.dir), JOBS_DIR)
+        with contextlib.suppress(OSError):  # a note that cannot be written only leaves the check blind
+            notes.mkdir(parents=True, exist_ok=True)
+            (notes / str(config.hydra.job.num)).write_text(str(Path(str(config.hydra.runtime.output_dir)).resolve()))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep = Path(str(config.hydra.sweep.dir))
-        failed = failed_jobs(sweep)
-        if not failed:
+        failed, shared = failed_jobs(sweep), shared_folders(sweep)
+        if not failed and not shared:
             return
         name = config.hydra.job.name
-        total = sum(1 for _ in sweep.rglob(".hydra"))
-        print(f"{name}: {len(failed)} of {total} job(s) failed in {sweep}:", file=sys.stderr)
-        for job, error in failed:
-            print(f"  {job}: {error}", file=sys.stderr)
+        if failed:
+            total = sum(1 for _ in sweep.rglob(".hydra"))
+            print(f"{name}: {len(failed)} of {total} job(s) failed in {sweep}:", file=sys.stderr)
+            for job, error in failed:
+                print(f"  {job}: {error}", file=sys.stderr)
+        for folder, jobs in shared.items():
+            print(
+                f"{name}: jobs {', '.join(map(str, jobs))} shared the folder {folder} (hydra.sweep.subdir gives them "
+                "one): each overwrote the other's files; put ${hydra.job.num} in the subdir",
+                file=sys.stderr,
+            )
         raise SystemExit(1)

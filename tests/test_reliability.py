@@ -222,6 +222,26 @@ def test_a_sweep_rerun_whose_job_fails_before_it_replaces_the_old_results_counts
     assert not (sweep / "1_pendulum" / "failure.json").exists()
 
 
+def test_sweep_jobs_that_share_one_folder_fail_the_sweep(tmp_path: Path) -> None:
+    """hydra.sweep.subdir=same: the second job found the first's results (refused, or with overwrite=true it
+    replaced them), and the sweep exited 0 with one folder of results for two jobs."""
+    sweep = tmp_path / "sweep"
+    for extra in ((), ("overwrite=true",)):
+        proc = _cli(
+            "-m",
+            "system=pendulum",
+            "record=none",
+            "seed=1,2",
+            f"hydra.sweep.dir={sweep}",
+            "hydra.sweep.subdir=same",
+            *extra,
+        )
+        assert proc.returncode == 1, proc.stderr[-2000:]
+        assert f"jobs 0, 1 shared the folder {(sweep / 'same').resolve()}" in proc.stderr, proc.stderr[-2000:]
+    proc = _cli("-m", "system=pendulum", "record=none", "seed=1,2", f"hydra.sweep.dir={tmp_path / 'apart'}")
+    assert proc.returncode == 0 and "shared the folder" not in proc.stderr, proc.stderr[-2000:]
+
+
 @pytest.mark.parametrize(("tool", "foreign"), [("harness.run", "diagnosis.json"), ("harness.diagnose", "results.json")])
 def test_a_folder_holding_the_other_tools_results_is_refused_even_with_overwrite(
     tmp_path: Path, tool: str, foreign: str
@@ -850,9 +870,17 @@ def test_a_failed_single_run_writes_failure_json_and_its_log(tmp_path: Path) -> 
 
 
 def _signalled_run(folder: Path, sig: int) -> tuple[int, str]:
-    """(exit status, stderr) of a run into `folder` sent `sig` once it holds the folder's lock."""
+    """(exit status, stderr) of a run into `folder` sent `sig` once it holds the folder's lock. The run starts with
+    SIGINT and SIGTERM at their defaults and unblocked, as a terminal starts a command: a process that inherits
+    SIGINT ignored (a shell's background job, or a test worker that some helper left so) never sees a Ctrl-C, and
+    this is about how the run ends on one it does see."""
+    reset = (
+        "import os, signal, sys; [signal.signal(s, signal.SIG_DFL) for s in (signal.SIGINT, signal.SIGTERM)]; "
+        "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM}); "
+        "os.execv(sys.executable, [sys.executable, '-m', 'harness.run', *sys.argv[1:]])"
+    )
     proc = subprocess.Popen(
-        [sys.executable, "-m", "harness.run", "system=wheel_pendulum", "record=none", f"hydra.run.dir={folder}"],
+        [sys.executable, "-c", reset, "system=wheel_pendulum", "record=none", f"hydra.run.dir={folder}"],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -874,8 +902,9 @@ def test_sigterm_ends_a_run_through_its_clean_up(tmp_path: Path) -> None:
 def test_ctrl_c_ends_a_run_with_one_line_and_status_130(tmp_path: Path) -> None:
     """SIGINT (Ctrl-C) printed the line and then a KeyboardInterrupt traceback, and the process died by the
     signal."""
+    inherited = (signal.getsignal(signal.SIGINT), signal.pthread_sigmask(signal.SIG_BLOCK, []))
     returncode, err = _signalled_run(tmp_path, signal.SIGINT)
-    assert returncode == 130, err[-2000:]
+    assert returncode == 130, (inherited, err[-2000:])
     assert "Traceback" not in err and "interrupted (Ctrl-C)" in err.strip().splitlines()[-1], err[-2000:]
     assert json.loads((tmp_path / "failure.json").read_text())["error"] == "interrupted (Ctrl-C)"
     assert not (tmp_path / LOCK_NAME).exists()
