@@ -238,8 +238,7 @@ def test_sweep_jobs_that_share_one_folder_fail_the_sweep(tmp_path: Path) -> None
         )
         assert proc.returncode == 1, proc.stderr[-2000:]
         assert f"jobs 0, 1 shared the folder {(sweep / 'same').resolve()}" in proc.stderr, proc.stderr[-2000:]
-    proc = _cli("-m", "system=pendulum", "record=none", "seed=1,2", f"hydra.sweep.dir={tmp_path / 'apart'}")
-    assert proc.returncode == 0 and "shared the folder" not in proc.stderr, proc.stderr[-2000:]
+    # a sweep whose jobs have folders of their own still exits 0: test_a_sweep_rerun_whose_job_fails_... checks it
 
 
 @pytest.mark.parametrize(("tool", "foreign"), [("harness.run", "diagnosis.json"), ("harness.diagnose", "results.json")])
