@@ -321,10 +321,8 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         raise ModelError(f"{path}: only hinge and slide joints are supported (no free or ball joints); found {bad}")
     active = [e for e in range(m.neq) if m.eq_active0[e]]  # an inactive one applies no force unless a user turns it on
     if active:
-        named = [
-            f"{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e)!r} ({mujoco.mjtEq(m.eq_type[e]).name[5:].lower()})"
-            for e in active
-        ]
+        kinds = [mujoco.mjtEq(m.eq_type[e]).name.removeprefix("mjEQ_").lower() for e in active]
+        named = [f"{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e)!r} ({k})" for e, k in zip(active, kinds, strict=True)]
         raise ModelError(
             f"{path}: equality constraint(s) {', '.join(named)} couple joints or close a chain; closed chains and "
             "coupled joints are not supported (remove the <equality> elements)"
@@ -332,8 +330,7 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     if m.ntendon:
         raise ModelError(f"{path}: {_tendons(m)}: tendons are not supported; drive each joint by its own actuator")
     for kind in ("damping", "armature"):  # MuJoCo 4: on the transmission, gear^2 times it on the joint
-        given = np.asarray(getattr(m, f"actuator_{kind}", np.zeros(m.nu)), dtype=float)
-        values = given.reshape(m.nu, -1)[:, 0] if given.size else np.zeros(m.nu)
+        values = getattr(m, f"actuator_{kind}")  # (nu,)
         if np.any(values != 0):
             a = int(np.flatnonzero(values)[0])
             actuator = _name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)

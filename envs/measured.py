@@ -311,17 +311,17 @@ def read_many(
 def _join_errors(errors: list[tuple[str, str]]) -> str:
     """One line per problem, in the order given: files whose messages differ only in the path that begins them
     (the same header, the same mapping) are named together before the message, once."""
-    grouped: dict[str, list[str]] = {}
+    grouped: dict[tuple[bool, str], list[str]] = {}  # (begins with its path, the message after it) -> paths
     for path, message in errors:
         prefix = f"{path}: "
-        key = message[len(prefix) :] if message.startswith(prefix) else "\0" + message  # \0: as it is, alone
-        grouped.setdefault(key, []).append(path)
+        named = message.startswith(prefix)
+        grouped.setdefault((named, message.removeprefix(prefix)), []).append(path)
     lines = []
-    for key, paths in grouped.items():
-        if key.startswith("\0"):
-            lines += [key[1:]] * len(paths)
+    for (named, text), paths in grouped.items():
+        if not named:  # a message of its own form: as it is, once per file
+            lines += [text] * len(paths)
         else:
-            lines.append(f"{paths[0] if len(paths) == 1 else f'{len(paths)} files, ' + ', '.join(paths)}: {key}")
+            lines.append(f"{paths[0] if len(paths) == 1 else f'{len(paths)} files, ' + ', '.join(paths)}: {text}")
     return "\n".join(lines)
 
 
@@ -748,18 +748,18 @@ def _guess_columns(plant: Plant, header: list[str]) -> dict[str, str]:
     numbered: dict[str, dict[int, list[tuple[bool, str]]]] = {}
     for column in header:
         words = _words(column)
-        command = bool(_COMMAND_WORDS & set(words))
-        measured = bool(_MEASURED_WORDS & set(words))
+        present = set(words)
+        command, measured = bool(_COMMAND_WORDS & present), bool(_MEASURED_WORDS & present)
         for kind, vocabulary in _KIND_WORDS.items():
-            if not vocabulary & set(words):
+            if not vocabulary & present:
                 continue
             if kind == "time":
-                if len(words) == 1 or (set(words) <= vocabulary | {"s", "sec"}):
+                if len(words) == 1 or present <= vocabulary | {"s", "sec"}:
                     found.setdefault("time", []).append((True, column))
                 continue
             if command and kind == "tau":
                 kind = "tau_cmd"
-            elif _NOT_MEASURED_WORDS & set(words) - _MEASURED_WORDS:
+            elif _NOT_MEASURED_WORDS & present - _MEASURED_WORDS:
                 continue
             named = [n for n in nameable if all(w in words for w in joint_words[n])]
             if len(named) == 1:

@@ -125,15 +125,15 @@ def fit_to_limits(plant: Plant, shape: FourierDesign, limits: Limits, *, min_mot
     up, down = np.max(dev, axis=0), np.max(-dev, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         room = np.minimum((limits.q_max - shape.q0) / up, (shape.q0 - limits.q_min) / down)  # (n,) per joint
+        room = np.where(np.isnan(room), np.inf, room)  # 0 / 0: a joint that does not move, at its range's end
         bounds = {
-            "q": float(np.nanmin(room, initial=np.inf)),
+            "q": float(np.min(room)),
             "dq": np.min(limits.dq_max / dq_unit),
             "ddq": np.min(limits.ddq_max / ddq_unit),
         }
     if bounds["q"] < 0:
         raise InfeasibleExcitationError(f"offset q0 = {shape.q0} lies outside the joint range (binding: q)", bound="q")
     common = float(min(bounds["dq"], bounds["ddq"]))
-    room = np.where(np.isnan(room), np.inf, room)
     units = np.array(plant.position_units)
     by_unit = np.array([np.min(room[units == u]) for u in units])  # (n,) the room of the joints of each one's unit
     per_joint = np.minimum(by_unit, common)

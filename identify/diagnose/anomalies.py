@@ -108,13 +108,13 @@ def _zero_while_moving(zero: np.ndarray, q: np.ndarray, moves: float, tau: np.nd
     a file so was called clean, its zeros fitted as the rigid body's). A joint at rest may read 0 for long, and
     so may a torque within a few steps of its sensor's resolution (RMS under `STUCK_QUANTA` of its quantum: a
     light wrist joint of a Menagerie arm on a 0.001 N m sensor reads 0 on an eighth of its rows)."""
-    rest = tau[~zero]
-    if rest.size and np.sqrt(np.mean(rest**2)) < STUCK_QUANTA * _quantum(rest):
-        return False
     least = max(STUCK_RUN_MIN, STUCK_RUN_SHARE * len(zero))
-    return any(
+    if not any(
         stop - start >= least and _span(q[start:stop]) > moves for start, stop in zip(*_run_bounds(zero), strict=True)
-    )
+    ):
+        return False
+    rest = tau[~zero]  # the resolution (a sort of the column) only where such a run is there to excuse
+    return not (rest.size and np.sqrt(np.mean(rest**2)) < STUCK_QUANTA * _quantum(rest))
 
 
 def _quantum(x: np.ndarray) -> float:
