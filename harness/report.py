@@ -2,16 +2,20 @@
 
 Each job folder of a Hydra multirun holds `results.json` (sysid-run), `diagnosis.json` (sysid-diagnose) or
 `failure.json` (a job that raised: the sweep went on without it). Written into the sweep folder:
-`report.md`, `report.csv` and `report.rrd`.
+`report.md`, `report.csv` and `report.rrd`, each whole or not at all, with `.sysid_report.json` noting what was
+written (`OUTPUTS`). Run again, sysid-report replaces its own report; a file of those names it did not write, or
+one changed since it wrote it (a user's notes in report.md), is never replaced: the run is refused, naming it.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import io
 import json
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,7 +27,7 @@ from omegaconf.errors import OmegaConfBaseException
 from envs.dataset import atomic_write
 from harness.rundir import STAGING_PREFIX, failed_since_results
 
-__all__ = ["collect", "main", "report_rows", "write_report"]
+__all__ = ["ForeignReportError", "check_outputs", "collect", "main", "report_rows", "write_report"]
 
 
 def _overrides(job: Path) -> str:
@@ -190,8 +194,63 @@ def _fmt(v: Any) -> str:
     return "" if v is None else str(v)
 
 
+OUTPUTS = ("report.md", "report.csv", "report.rrd")
+MANIFEST = ".sysid_report.json"  # {output name: sha256 of the file as sysid-report wrote it}
+# the last line of a report.md written before the manifest existed
+_EARLIER_REPORT = re.compile(r"^\d+ jobs, \d+ ok, \d+ failed$", re.MULTILINE)
+
+
+class ForeignReportError(FileExistsError):
+    """A file where the report goes that sysid-report did not write, or that changed since it did."""
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _manifest(sweep: Path) -> dict[str, str]:
+    try:
+        data = json.loads((sweep / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return {}
+    return {k: v for k, v in data.items() if isinstance(v, str)} if isinstance(data, dict) else {}
+
+
+def check_outputs(sweep: Path) -> None:
+    """Raise ForeignReportError naming the first of `OUTPUTS` in `sweep` that sysid-report would replace but
+    did not write: not as the manifest notes it, or (for a folder reported before the manifest existed, none of
+    whose files it names) not a report.md that ends as sysid-report's do."""
+    written = _manifest(sweep)
+    earlier = False
+    if not written and (sweep / "report.md").is_file():
+        try:
+            earlier = bool(_EARLIER_REPORT.search((sweep / "report.md").read_text()))
+        except (OSError, UnicodeDecodeError):
+            earlier = False
+    for name in OUTPUTS:
+        path = sweep / name
+        if not path.exists() and not path.is_symlink():
+            continue
+        if path.is_file() and not path.is_symlink() and (earlier or written.get(name) == _digest(path)):
+            continue
+        raise ForeignReportError(
+            f"{path} was not written by sysid-report, or was changed since: nothing is written over it; move it "
+            "away (or delete it) and run sysid-report again"
+        )
+
+
+def _note_written(sweep: Path, written: dict[str, str], name: str) -> None:
+    written[name] = _digest(sweep / name)
+    atomic_write(sweep / MANIFEST, lambda f: f.write(json.dumps(written, indent=1) + "\n"))
+
+
 def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> None:
-    """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all."""
+    """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all, and noted in
+    the manifest as it is written; none of them where one in the folder is not sysid-report's (`check_outputs`:
+    ForeignReportError)."""
+    sweep = Path(sweep)
+    check_outputs(sweep)
+    written = {k: v for k, v in _manifest(sweep).items() if k in OUTPUTS}
     stale = [r["job"] for r in rows if r["status"] == "stale"]
     rows = [r for r in rows if r["status"] != "stale"]
     records = None if records is None else [r for r in records if r["status"] != "stale"]
@@ -203,12 +262,15 @@ def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str
     if stale:
         md += ["", f"Left out, from an earlier sweep in this folder: {', '.join(stale)}"]
     atomic_write(sweep / "report.md", lambda f: f.write("\n".join(md) + "\n"))
+    _note_written(sweep, written, "report.md")
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=columns)
     writer.writeheader()
     writer.writerows(rows)
     atomic_write(sweep / "report.csv", lambda f: f.write(buf.getvalue()))
+    _note_written(sweep, written, "report.csv")
     _record(sweep / "report.rrd", rows, records)
+    _note_written(sweep, written, "report.rrd")
 
 
 # Reference lines drawn on the report's charts: the largest |z| a calibrated std allows about once in 370
@@ -321,6 +383,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         write_report(args.sweep, rows, records)
+    except ForeignReportError as err:
+        print(f"sysid-report: error: {err}", file=sys.stderr)
+        return 2
     except OSError as err:
         print(f"sysid-report: error: cannot write the report into {args.sweep}: {err.strerror or err}", file=sys.stderr)
         return 2

@@ -138,3 +138,47 @@ def test_an_earlier_sweeps_jobs_left_in_the_folder_are_not_counted(tmp_path: Pat
     assert "1 jobs, 1 ok, 0 failed" in text and "Left out, from an earlier sweep in this folder: 1_pendulum" in text
     with (tmp_path / "report.csv").open() as f:
         assert [row["job"] for row in csv.DictReader(f)] == ["0_pendulum"]
+
+
+def _one_job_sweep(folder: Path) -> None:
+    (folder / "0_pendulum" / ".hydra").mkdir(parents=True)
+    (folder / "0_pendulum" / "results.json").write_text(json.dumps(RESULTS))
+
+
+def test_a_report_file_sysid_report_did_not_write_is_never_replaced(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """sysid-report replaces its own report when run again, and nothing else: a report.md (or .csv, .rrd) of the
+    user's in the sweep folder, or its own report.md edited since (notes added under the table), is left as it is,
+    the run is refused with one line naming the file, and none of the three is written."""
+    _one_job_sweep(tmp_path)
+    assert main([str(tmp_path)]) == 0
+    assert main([str(tmp_path)]) == 0  # its own report, replaced
+    capsys.readouterr()
+    edited = (tmp_path / "report.md").read_text() + "\nSeed 5 looks off: ask Ana.\n"
+    (tmp_path / "report.md").write_text(edited)
+    csv_before = (tmp_path / "report.csv").read_bytes()
+    assert main([str(tmp_path)]) == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{tmp_path / 'report.md'} was not written by sysid-report, or was changed since" in err
+    assert (tmp_path / "report.md").read_text() == edited and (tmp_path / "report.csv").read_bytes() == csv_before
+
+    for name in ("report.md", "report.csv", "report.rrd"):  # a file of the user's under each name
+        sweep = tmp_path / f"mine_{name}"
+        _one_job_sweep(sweep)
+        (sweep / name).write_text("my own notes\n")
+        assert main([str(sweep)]) == 2
+        assert name in capsys.readouterr().err
+        assert (sweep / name).read_text() == "my own notes\n"
+        assert sorted(p.name for p in sweep.iterdir()) == ["0_pendulum", name]  # nothing else written
+
+
+def test_a_report_written_before_the_manifest_is_still_replaced(tmp_path: Path) -> None:
+    """A sweep reported by a version without `.sysid_report.json`: its report.md (ending in the jobs line) and the
+    report.csv / report.rrd beside it are sysid-report's, and are replaced."""
+    _one_job_sweep(tmp_path)
+    assert main([str(tmp_path)]) == 0
+    (tmp_path / ".sysid_report.json").unlink()
+    (tmp_path / "report.csv").write_text("job,status\nold,ok\n")
+    assert main([str(tmp_path)]) == 0
+    with (tmp_path / "report.csv").open() as f:
+        assert [row["job"] for row in csv.DictReader(f)] == ["0_pendulum"]
+    assert json.loads((tmp_path / ".sysid_report.json").read_text()).keys() == {"report.md", "report.csv", "report.rrd"}
