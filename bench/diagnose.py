@@ -780,9 +780,11 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
                 "The same calibrated MJCFs judged with each joint's friction rewritten as a wider ramp Fc sat(dq / vt) "
                 "(its Fc unchanged; `widened`): how much the judged RMS depends on the friction's shape near zero "
                 "speed. A wider ramp looks better where the model is judged unfiltered against the filtered torque "
-                "(a torque step cannot match a 5 Hz low-passed one) and not where both sides are filtered; the "
-                "calibrated file keeps the fitted shape, since a wide ramp lets a joint creep under a load it "
-                "should hold in simulation.",
+                "(a torque step cannot match a 5 Hz low-passed one) and not where both sides are filtered. The "
+                "calibrated file widens a joint's friction only where the training records' rows the fit left out "
+                "(sticking, turning round) ask for it (`slow_friction_ramps` in the diagnosis JSON; on these "
+                "splits C.1's elbow at 0.1 rad/s wherever 20230629-144115, which commands it zero torque, is among "
+                "the training files): a wide ramp lets a joint creep under a load it should hold in simulation.",
                 "",
                 ramps,
                 "",

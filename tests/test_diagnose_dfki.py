@@ -202,3 +202,70 @@ def test_c1s_changing_zeros_come_with_the_start_pose_hint(shared_data: Path) -> 
     (note,) = [n for n in dg.notes if n.startswith("shoulder: the training records' mean torque residuals")]
     assert "diagnose.record_joint_offsets=true" in note
     assert "every training record starts at the same angles (to 0.01 rad) and ends elsewhere" in note
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("held_out", "ramp"), [("20230629-143339.csv", 0.1), ("20230629-144115.csv", None)])
+def test_c1s_elbow_friction_below_sliding_speed_is_a_ramp_where_a_file_holds_it_at_zero_torque(
+    shared_data: Path, tmp_path: Path, held_out: str, ramp: float | None
+) -> None:
+    """C.1's 20230629-144115 commands the elbow zero torque throughout: it sticks for up to 0.7 s at a time while
+    the drive reads ~0. Where that file is among the training records, the elbow's friction below sliding speed
+    (rows the final fit leaves out) is written as a 0.1 rad/s ramp, chosen on those rows, and the held-out file's
+    elbow is predicted better than with the narrow shape (judged as bench/diagnose.py judges: the model's MuJoCo
+    inverse dynamics on 5 Hz zero-phase states against the 5 Hz torque). Held out itself, no training file holds
+    the elbow so, no ramp lowers the training error by the margin asked, and the friction stays narrow."""
+    import mujoco
+    import numpy as np
+    from omegaconf import OmegaConf
+    from scipy import signal
+
+    from dynamics.friction import friction_parameters, friction_solver, ideal_friction_speed
+    from dynamics.plant import load_plant
+    from envs.measured import read_measured
+    from identify.derivatives import derive_states
+    from identify.diagnose.calibrate import mjcf_measured_torque
+
+    folder = shared_data / "dfki_double_pendulum_c1"
+    files = sorted(folder.glob("*.csv"))
+    cfg = compose_config(
+        [
+            "system=two_link",
+            "data=dfki_double_pendulum_c1",
+            f"data.path=[{','.join(str(f) for f in files)}]",
+            f"data.validation=[{held_out}]",
+            "diagnose.final_fit=false",
+            f"output_dir={tmp_path}",
+        ],
+        config_name="diagnose",
+    )
+    cli.run(cfg)
+    info = json.loads((tmp_path / "diagnosis.json").read_text())["info"]["slow_friction_ramps"]
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / "two_link_calibrated.xml"))
+    speed = friction_parameters(model)[0]
+    if ramp is None:
+        assert info == {}
+        assert np.all(speed < 0.01)  # the narrow shape MuJoCo simulates stably
+        return
+    assert set(info) == {"elbow"}
+    assert info["elbow"]["ramp_speed"] == ramp
+    assert info["elbow"]["training_rms_ramp"] ** 2 < 0.9 * info["elbow"]["training_rms_narrow"] ** 2
+    assert speed[1] == pytest.approx(ramp, rel=1e-6) and speed[0] < 0.01
+
+    narrow = mujoco.MjModel.from_xml_path(str(tmp_path / "two_link_calibrated.xml"))
+    fc, invweight = float(narrow.dof_frictionloss[1]), float(narrow.dof_invweight0[1])
+    solref, solimp, _ = friction_solver(
+        fc, ideal_friction_speed(fc, invweight, narrow.opt.timestep), invweight, narrow.opt.timestep
+    )
+    narrow.dof_solref[1], narrow.dof_solimp[1] = solref, solimp
+    columns = OmegaConf.to_container(cfg.data.columns)
+    data = read_measured(folder / held_out, load_plant("two_link"), columns=columns)  # type: ignore[arg-type]
+    states = derive_states(data, "butterworth", cutoff_hz=5.0)
+    sos = signal.butter(4, 5.0, fs=1.0 / data.dt, output="sos")
+    measured = signal.sosfiltfilt(sos, data.tau, axis=0)[states.valid]
+
+    def elbow_rms(m: mujoco.MjModel) -> float:
+        pred = mjcf_measured_torque(m, data.time, states.q, states.dq, states.ddq)[states.valid]
+        return float(np.sqrt(np.mean((measured[:, 1] - pred[:, 1]) ** 2)))
+
+    assert elbow_rms(model) < elbow_rms(narrow)
