@@ -442,3 +442,61 @@ def test_a_record_shorter_than_one_simulation_window_names_the_key() -> None:
     zeros = np.zeros((len(t), 2))
     with pytest.raises(ValueError, match=r"record \(7\.998 s\) is shorter .* \(diagnose\.window_s = 20\.0 s\): give a"):
         simulation_error((lambda *a: None, 0.002), t, zeros, zeros, zeros, window_s=20.0)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("own_zeros", [False, True])
+def test_a_ramp_below_sliding_speed_is_taken_only_by_its_margin_and_only_wider_than_the_nominal_one(
+    monkeypatch: pytest.MonkeyPatch, own_zeros: bool
+) -> None:
+    """`_slow_friction_ramps`' rule, with the calibrated MJCF's prediction replaced by a table of errors per ramp.
+    A joint takes the ramp of least training error only where it is 10 % below the narrow shape's: 0.1 rad/s, 50 %
+    lower, is taken; on another joint 0.03, the least there but only 5 % lower, is not. A joint whose nominal MJCF
+    declares a 0.2 rad/s ramp is tried only on the wider 0.3 (0.03 would be lower still). A joint whose torques the
+    fit used on every row is not tried. Errors that are a constant per record are the record's torque zero where
+    those are fitted (`own_zeros`): nothing is taken then."""
+    import identify.diagnose.diagnosis as dg
+    from identify.diagnose.calibrate import Extension
+
+    n, nv = 200, 4
+    error = {  # joint -> ramp width (0: narrow) -> the prediction's error, a constant
+        0: {0.0: 1.0, 0.03: 0.95**0.5, 0.1: 0.5**0.5, 0.3: 0.8**0.5},
+        1: {0.0: 1.0, 0.03: 0.1, 0.1: 0.9, 0.3: 0.6},
+        2: {0.0: 1.0, 0.03: 0.1, 0.1: 0.1, 0.3: 0.1},
+        3: {0.0: 1.0, 0.03: 0.95**0.5, 0.1: 0.97**0.5, 0.3: 0.99**0.5},
+    }
+
+    def predict(model: object, ext: Extension, records: list[object]) -> np.ndarray:
+        return np.column_stack([np.full(n, error[j][float(ext.friction_speed[j])]) for j in range(nv)])
+
+    monkeypatch.setattr(dg, "_predict_records", predict)
+    zeros = np.zeros(nv)
+    ext = Extension(zeros, zeros, zeros, zeros, zeros, np.zeros(10 * nv), zeros, zeros, np.ones(nv), zeros)
+    signals = type(
+        "Signals",
+        (),
+        {
+            "record": np.repeat([0, 1], n // 2),
+            "used": None,
+            "tau": np.zeros((n, nv)),
+            "smooth": staticmethod(lambda x: x),
+        },
+    )()
+    sliding = np.ones((n, nv), bool)
+    sliding[:10, [0, 1, 3]] = False  # joints 0, 1 and 3 stick on some rows; joint 2 never does
+    out, chosen = dg._slow_friction_ramps(
+        ext,
+        sliding,
+        [None, None],  # type: ignore[list-item]
+        signals,  # type: ignore[arg-type]
+        ("a", "b", "c", "d"),
+        lambda e: None,  # type: ignore[arg-type,return-value]
+        preference=0.1,
+        nominal_speed=np.array([0.0, 0.2, 0.0, 0.0]),
+        own_zeros=own_zeros,
+    )
+    if own_zeros:
+        assert chosen == {} and out is ext
+        return
+    assert {k: v["ramp_speed"] for k, v in chosen.items()} == {"a": 0.1, "b": 0.3}
+    assert out.friction_speed.tolist() == [0.1, 0.3, 0.0, 0.0] and ext.friction_speed.tolist() == [0.0] * 4
+    assert chosen["a"]["training_rms_ramp"] == pytest.approx(0.5**0.5) and chosen["a"]["records_lowered"] == 2

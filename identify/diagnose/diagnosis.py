@@ -881,7 +881,15 @@ def diagnose(
             return simulated(plant_from_xml(calibrated_xml(plant, ext, metric=metric), f"{plant.name}_ramp", tmp))
 
         ext, ramps = _slow_friction_ramps(
-            ext, sliding, tr, s_tr, names, build, preference=selection.native_preference, own_zeros=m_t > 0
+            ext,
+            sliding,
+            tr,
+            s_tr,
+            names,
+            build,
+            preference=selection.native_preference,
+            nominal_speed=np.asarray(plant.friction_speed, float),
+            own_zeros=m_t > 0,
         )
         xml, calibrated, preds_cal = calibrate(ext, findings)
         held_out = _held_out_mse(s_va, s_va.tau_nominal, weights), _held_out_mse(s_va, preds_cal, weights)
@@ -1705,6 +1713,7 @@ def _slow_friction_ramps(
     build: Callable[[Extension], Plant],
     *,
     preference: float,
+    nominal_speed: np.ndarray,
     own_zeros: bool = False,
 ) -> tuple[Extension, dict[str, dict[str, Any]]]:
     """`ext` with the shape below sliding speed of each joint whose Coulomb friction the final fit took from its
@@ -1723,8 +1732,10 @@ def _slow_friction_ramps(
     ramp against the ideal shape: the width is a choice from a grid). The final fit's coefficients never saw
     these rows. On the DFKI C.1 logs, one file of which commands the elbow zero torque throughout, the elbow takes
     0.1 rad/s wherever that file is among the training records (its mean square error 12-15 % lower), and no joint
-    changes where it is not (below 0.4 %). `own_zeros`: each record's torque zero was fitted as a nuisance (not in
-    `ext`): the errors are taken less their mean per record.
+    changes where it is not (below 0.4 %). A joint whose nominal MJCF declares a ramp keeps it where it fits a new
+    Fc (`calibrate._write_friction_shapes`): only wider ones are tried there (`nominal_speed`, (nv,) [rad/s]).
+    `own_zeros`: each record's torque zero was fitted as a nuisance (not in `ext`): the errors are taken less their
+    mean per record.
 
     In forward simulation a ramp of width vt lets a joint under a load L below Fc creep at about vt L / Fc: the
     price of a torque model that predicts the middle of the set, not a random edge of it, where the data say
@@ -1758,7 +1769,10 @@ def _slow_friction_ramps(
     speeds = ext.friction_speed.copy()
     chosen: dict[str, dict[str, Any]] = {}
     for j in joints:
-        vt = min(tried, key=lambda v: float(tried[v][:, j].sum()))
+        wider = [v for v in tried if v > nominal_speed[j]]
+        if not wider:
+            continue
+        vt = min(wider, key=lambda v: float(tried[v][:, j].sum()))
         lowered = int(np.count_nonzero(tried[vt][:, j] < narrow[:, j]))
         if tried[vt][:, j].sum() < (1.0 - preference) * narrow[:, j].sum():
             speeds[j] = vt
