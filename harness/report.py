@@ -15,6 +15,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import re
 import sys
 from pathlib import Path
@@ -195,62 +196,91 @@ def _fmt(v: Any) -> str:
 
 
 OUTPUTS = ("report.md", "report.csv", "report.rrd")
-MANIFEST = ".sysid_report.json"  # {output name: sha256 of the file as sysid-report wrote it}
-# the last line of a report.md written before the manifest existed
-_EARLIER_REPORT = re.compile(r"^\d+ jobs, \d+ ok, \d+ failed$", re.MULTILINE)
+MANIFEST = ".sysid_report.json"  # {output name: [sha256 of each version sysid-report may have left in place]}
+_JOBS_LINE = re.compile(r"\d+ jobs, \d+ ok, \d+ failed")
+_RRD_MAGIC = b"RRF"  # what every rerun recording file starts with
 
 
 class ForeignReportError(FileExistsError):
     """A file where the report goes that sysid-report did not write, or that changed since it did."""
 
 
-def _digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
 
 
-def _manifest(sweep: Path) -> dict[str, str]:
+def _manifest(sweep: Path) -> dict[str, list[str]] | None:
+    """The manifest's accepted digests per output; None where there is none; ForeignReportError where one is
+    there that cannot be read as sysid-report writes it (it guards the user's files: it is not guessed past)."""
+    path = sweep / MANIFEST
+    if not path.exists() and not path.is_symlink():
+        return None
     try:
-        data = json.loads((sweep / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return {}
-    return {k: v for k, v in data.items() if isinstance(v, str)} if isinstance(data, dict) else {}
+        data = json.loads(path.read_text())
+        if not isinstance(data, dict):
+            raise ValueError("not an object")
+        return {k: [v] if isinstance(v, str) else [d for d in v if isinstance(d, str)] for k, v in data.items()}
+    except (OSError, ValueError, TypeError, UnicodeDecodeError) as err:
+        raise ForeignReportError(
+            f"{path} cannot be read ({err}): it says which report files sysid-report wrote, so none is written "
+            "over; move the report files you want to keep away, delete it, and run sysid-report again"
+        ) from err
 
 
-def check_outputs(sweep: Path) -> None:
-    """Raise ForeignReportError naming the first of `OUTPUTS` in `sweep` that sysid-report would replace but
-    did not write: not as the manifest notes it, or (for a folder reported before the manifest existed, none of
-    whose files it names) not a report.md that ends as sysid-report's do."""
-    written = _manifest(sweep)
-    earlier = False
-    if not written and (sweep / "report.md").is_file():
-        try:
-            earlier = bool(_EARLIER_REPORT.search((sweep / "report.md").read_text()))
-        except (OSError, UnicodeDecodeError):
-            earlier = False
+def _earlier_version(name: str, data: bytes) -> bool:
+    """Whether `data` is the file `name` as sysid-report wrote it before the manifest existed: a report.md that
+    is its table and ends with the jobs line (then, if any, the left-out line), a report.csv whose header starts
+    with job, overrides, status, a rerun recording."""
+    if name == "report.rrd":
+        return data.startswith(_RRD_MAGIC)
+    try:
+        text = data.decode()
+    except UnicodeDecodeError:
+        return False
+    if name == "report.csv":
+        return text.startswith("job,overrides,status")
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    if lines and lines[-1].startswith("Left out, from an earlier sweep in this folder: "):
+        lines = lines[:-1]
+    return bool(lines) and lines[0].startswith("| ") and bool(_JOBS_LINE.fullmatch(lines[-1]))
+
+
+def check_outputs(sweep: Path) -> dict[str, str]:
+    """The digest of each of `OUTPUTS` in `sweep` that is sysid-report's (as the manifest notes it, or, in a
+    folder without one, as `_earlier_version` recognises it); ForeignReportError naming the first that is
+    not, or a manifest that cannot be read."""
+    accepted = _manifest(sweep)
+    ours: dict[str, str] = {}
     for name in OUTPUTS:
         path = sweep / name
         if not path.exists() and not path.is_symlink():
             continue
-        if path.is_file() and not path.is_symlink() and (earlier or written.get(name) == _digest(path)):
-            continue
+        data = path.read_bytes() if path.is_file() and not path.is_symlink() else None
+        if data is not None:
+            digest = _digest(data)
+            if digest in (accepted or {}).get(name, []) or (accepted is None and _earlier_version(name, data)):
+                ours[name] = digest
+                continue
         raise ForeignReportError(
             f"{path} was not written by sysid-report, or was changed since: nothing is written over it; move it "
             "away (or delete it) and run sysid-report again"
         )
+    return ours
 
 
-def _note_written(sweep: Path, written: dict[str, str], name: str) -> None:
-    written[name] = _digest(sweep / name)
-    atomic_write(sweep / MANIFEST, lambda f: f.write(json.dumps(written, indent=1) + "\n"))
+def _write_manifest(sweep: Path, accepted: dict[str, list[str]]) -> None:
+    atomic_write(sweep / MANIFEST, lambda f: f.write(json.dumps(accepted, indent=1) + "\n"))
 
 
 def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> None:
-    """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all, and noted in
-    the manifest as it is written; none of them where one in the folder is not sysid-report's (`check_outputs`:
-    ForeignReportError)."""
+    """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all; none of them
+    where one in the folder is not sysid-report's (`check_outputs`: ForeignReportError).
+
+    All three are made first (the recording in a hidden file beside it). The manifest then accepts both the old
+    and the new version of each before any is put in place, and only the new ones after: a run cut short at any
+    point leaves files the next run recognises as its own. Two runs at once on one folder are not guarded."""
     sweep = Path(sweep)
-    check_outputs(sweep)
-    written = {k: v for k, v in _manifest(sweep).items() if k in OUTPUTS}
+    ours = check_outputs(sweep)
     stale = [r["job"] for r in rows if r["status"] == "stale"]
     rows = [r for r in rows if r["status"] != "stale"]
     records = None if records is None else [r for r in records if r["status"] != "stale"]
@@ -261,16 +291,23 @@ def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str
     md += ["", f"{len(rows)} jobs, {len(rows) - n_failed} ok, {n_failed} failed"]
     if stale:
         md += ["", f"Left out, from an earlier sweep in this folder: {', '.join(stale)}"]
-    atomic_write(sweep / "report.md", lambda f: f.write("\n".join(md) + "\n"))
-    _note_written(sweep, written, "report.md")
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=columns)
     writer.writeheader()
     writer.writerows(rows)
-    atomic_write(sweep / "report.csv", lambda f: f.write(buf.getvalue()))
-    _note_written(sweep, written, "report.csv")
-    _record(sweep / "report.rrd", rows, records)
-    _note_written(sweep, written, "report.rrd")
+    made = {"report.md": ("\n".join(md) + "\n").encode(), "report.csv": buf.getvalue().encode()}
+    staged = sweep / f".report.rrd.{os.getpid()}.tmp"
+    try:
+        _record(staged, rows, records)
+        made["report.rrd"] = staged.read_bytes()
+        new = {name: _digest(data) for name, data in made.items()}
+        _write_manifest(sweep, {name: [*([ours[name]] if name in ours else []), new[name]] for name in OUTPUTS})
+        for name in ("report.md", "report.csv"):
+            atomic_write(sweep / name, lambda f, data=made[name]: f.write(data), binary=True)
+        os.replace(staged, sweep / "report.rrd")
+    finally:
+        staged.unlink(missing_ok=True)
+    _write_manifest(sweep, {name: [new[name]] for name in OUTPUTS})
 
 
 # Reference lines drawn on the report's charts: the largest |z| a calibrated std allows about once in 370

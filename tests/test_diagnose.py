@@ -483,20 +483,27 @@ def test_a_ramp_below_sliding_speed_is_taken_only_by_its_margin_and_only_wider_t
     )()
     sliding = np.ones((n, nv), bool)
     sliding[:10, [0, 1, 3]] = False  # joints 0, 1 and 3 stick on some rows; joint 2 never does
-    out, chosen = dg._slow_friction_ramps(
-        ext,
-        sliding,
-        [None, None],  # type: ignore[list-item]
-        signals,  # type: ignore[arg-type]
-        ("a", "b", "c", "d"),
-        lambda e: None,  # type: ignore[arg-type,return-value]
-        preference=0.1,
-        nominal_speed=np.array([0.0, 0.2, 0.0, 0.0]),
-        own_zeros=own_zeros,
-    )
+
+    def ramps(nominal: np.ndarray, zeros_fitted: bool = False) -> tuple[Extension, dict]:
+        return dg._slow_friction_ramps(
+            ext,
+            sliding,
+            [None, None],  # type: ignore[list-item]
+            signals,  # type: ignore[arg-type]
+            ("a", "b", "c", "d"),
+            lambda e: None,  # type: ignore[arg-type,return-value]
+            preference=0.1,
+            nominal_speed=nominal,
+            own_zeros=zeros_fitted,
+        )
+
+    out, chosen = ramps(np.array([0.0, 0.2, 0.0, 0.0]), own_zeros)
     if own_zeros:
         assert chosen == {} and out is ext
         return
     assert {k: v["ramp_speed"] for k, v in chosen.items()} == {"a": 0.1, "b": 0.3}
     assert out.friction_speed.tolist() == [0.1, 0.3, 0.0, 0.0] and ext.friction_speed.tolist() == [0.0] * 4
     assert chosen["a"]["training_rms_ramp"] == pytest.approx(0.5**0.5) and chosen["a"]["records_lowered"] == 2
+    # rows the error does not count (held by a nominal friction, in the stops) tell nothing: no joint is tried
+    signals.used = sliding.copy()
+    assert ramps(np.zeros(nv)) == (ext, {})

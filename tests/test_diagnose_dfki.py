@@ -240,16 +240,19 @@ def test_c1s_elbow_friction_below_sliding_speed_is_a_ramp_where_a_file_holds_it_
         config_name="diagnose",
     )
     cli.run(cfg)
-    info = json.loads((tmp_path / "diagnosis.json").read_text())["info"]["slow_friction_ramps"]
+    payload = json.loads((tmp_path / "diagnosis.json").read_text())
+    info = payload["info"]["slow_friction_ramps"]
+    said = [n for n in payload["notes"] if "friction below sliding speed" in n]
     model = mujoco.MjModel.from_xml_path(str(tmp_path / "two_link_calibrated.xml"))
     speed = friction_parameters(model)[0]
     if ramp is None:
-        assert info == {}
+        assert info == {} and said == []
         assert np.all(speed < 0.01)  # the narrow shape MuJoCo simulates stably
         return
     assert set(info) == {"elbow"}
+    assert len(said) == 1 and said[0].startswith("elbow: its friction below sliding speed is written as a ramp of 0.1")
     assert info["elbow"]["ramp_speed"] == ramp
-    assert info["elbow"]["training_rms_ramp"] ** 2 < 0.9 * info["elbow"]["training_rms_narrow"] ** 2
+    assert info["elbow"]["training_rms_ramp"] ** 2 < 0.9 * info["elbow"]["training_rms_before"] ** 2
     assert speed[1] == pytest.approx(ramp, rel=1e-6) and speed[0] < 0.01
 
     narrow = mujoco.MjModel.from_xml_path(str(tmp_path / "two_link_calibrated.xml"))

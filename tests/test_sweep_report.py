@@ -171,14 +171,59 @@ def test_a_report_file_sysid_report_did_not_write_is_never_replaced(tmp_path: Pa
         assert sorted(p.name for p in sweep.iterdir()) == ["0_pendulum", name]  # nothing else written
 
 
-def test_a_report_written_before_the_manifest_is_still_replaced(tmp_path: Path) -> None:
-    """A sweep reported by a version without `.sysid_report.json`: its report.md (ending in the jobs line) and the
-    report.csv / report.rrd beside it are sysid-report's, and are replaced."""
+def test_a_report_written_before_the_manifest_is_still_replaced_and_one_with_notes_is_not(tmp_path: Path) -> None:
+    """A sweep reported by a version without `.sysid_report.json`: a report.md that is its table and ends with the
+    jobs line, a report.csv whose header starts job,overrides,status and a rerun recording are sysid-report's, and
+    are replaced. The same report.md with the user's notes after the jobs line, or a report.csv of another header,
+    is not; nor is anything where the manifest cannot be read."""
     _one_job_sweep(tmp_path)
     assert main([str(tmp_path)]) == 0
-    (tmp_path / ".sysid_report.json").unlink()
-    (tmp_path / "report.csv").write_text("job,status\nold,ok\n")
+    manifest = tmp_path / ".sysid_report.json"
+    manifest.unlink()
+    (tmp_path / "report.csv").write_text("job,overrides,status\nold,,ok\n")
     assert main([str(tmp_path)]) == 0
     with (tmp_path / "report.csv").open() as f:
         assert [row["job"] for row in csv.DictReader(f)] == ["0_pendulum"]
-    assert json.loads((tmp_path / ".sysid_report.json").read_text()).keys() == {"report.md", "report.csv", "report.rrd"}
+    assert set(json.loads(manifest.read_text())) == {"report.md", "report.csv", "report.rrd"}
+
+    manifest.unlink()
+    noted = (tmp_path / "report.md").read_text() + "\nSeed 5 looks off.\n"
+    (tmp_path / "report.md").write_text(noted)
+    assert main([str(tmp_path)]) == 2
+    assert (tmp_path / "report.md").read_text() == noted
+    (tmp_path / "report.md").unlink()
+    (tmp_path / "report.csv").write_text("run,score\n1,2\n")
+    assert main([str(tmp_path)]) == 2
+    assert (tmp_path / "report.csv").read_text() == "run,score\n1,2\n"
+
+    (tmp_path / "report.csv").unlink()
+    assert main([str(tmp_path)]) == 0
+    manifest.write_text("{not json")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    assert main([str(tmp_path)]) == 2
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+
+
+def test_a_report_cut_short_while_it_is_put_in_place_is_still_its_own(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The manifest accepts the old and the new version of each file before any is put in place: a run that
+    dies after report.md is replaced (here the recording's rename fails) leaves a folder the next run replaces."""
+    import harness.report as report
+
+    _one_job_sweep(tmp_path)
+    assert main([str(tmp_path)]) == 0
+    (tmp_path / "1_pendulum" / ".hydra").mkdir(parents=True)  # the sweep grew: every file changes
+    (tmp_path / "1_pendulum" / "results.json").write_text(json.dumps(RESULTS))
+    real_replace = report.os.replace
+
+    def failing(src: object, dst: object) -> None:
+        if str(dst).endswith("report.rrd"):
+            raise OSError(28, "No space left on device", str(dst))
+        real_replace(src, dst)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(report.os, "replace", failing)
+    assert main([str(tmp_path)]) == 2
+    assert "2 jobs, 2 ok, 0 failed" in (tmp_path / "report.md").read_text()  # the new report.md is in place
+    assert not list(tmp_path.glob(".report.rrd.*"))  # the staged recording is gone
+    monkeypatch.setattr(report.os, "replace", real_replace)
+    assert main([str(tmp_path)]) == 0
+    assert set(json.loads((tmp_path / ".sysid_report.json").read_text())) == {"report.md", "report.csv", "report.rrd"}
