@@ -29,6 +29,7 @@ __all__ = [
     "parameter_entity",
     "record_diagnosis",
     "record_run",
+    "recording_bytes",
     "run_blueprint",
     "save_recording",
     "style_series",
@@ -49,18 +50,24 @@ _GHOST_ALPHA = 110
 FLUSH_TIMEOUT_S = 120.0  # the longest wait for rerun's encoder to hand over a recording's bytes
 
 
-def save_recording(path: Path, app_id: str, fill: Callable[[rr.RecordingStream], None]) -> None:
-    """Create a recording, let `fill` log into it, and write the finished file to `path` (never half-written).
-
-    The recording is encoded into memory and written by `atomic_write`, not by rerun's file sink: on a full
-    disk that sink's flush waits forever (and so does `disconnect`), while a plain write fails at once with
-    `OSError` (ENOSPC), and the wait for the encoder is bounded by `FLUSH_TIMEOUT_S`.
-    """
+def recording_bytes(app_id: str, fill: Callable[[rr.RecordingStream], None]) -> bytes:
+    """Create a recording, let `fill` log into it, and return the finished .rrd file's bytes, encoded in memory
+    (the wait for the encoder bounded by `FLUSH_TIMEOUT_S`)."""
     rec = rr.RecordingStream(app_id)
     stream = rr.binary_stream(recording=rec)
     fill(rec)
-    data = stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S)
-    atomic_write(Path(path), lambda f: f.write(data or b""), binary=True)
+    return stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S) or b""
+
+
+def save_recording(path: Path, app_id: str, fill: Callable[[rr.RecordingStream], None]) -> None:
+    """`recording_bytes` written to `path` (never half-written).
+
+    The recording is encoded into memory and written by `atomic_write`, not by rerun's file sink: on a full
+    disk that sink's flush waits forever (and so does `disconnect`), while a plain write fails at once with
+    `OSError` (ENOSPC).
+    """
+    data = recording_bytes(app_id, fill)
+    atomic_write(Path(path), lambda f: f.write(data), binary=True)
 
 
 def log_joint_series(rec: rr.RecordingStream, entity: str, time: np.ndarray, values: np.ndarray) -> None:

@@ -15,7 +15,6 @@ import hashlib
 import io
 import json
 import math
-import os
 import re
 import sys
 from pathlib import Path
@@ -276,7 +275,7 @@ def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str
     """report.md, report.csv and report.rrd in the sweep folder, each written whole or not at all; none of them
     where one in the folder is not sysid-report's (`check_outputs`: ForeignReportError).
 
-    All three are made first (the recording in a hidden file beside it). The manifest then accepts both the old
+    All three are made first, in memory. The manifest then accepts both the old
     and the new version of each before any is put in place, and only the new ones after: a run cut short at any
     point leaves files the next run recognises as its own. Two runs at once on one folder are not guarded."""
     sweep = Path(sweep)
@@ -295,18 +294,15 @@ def write_report(sweep: Path, rows: list[dict[str, Any]], records: list[dict[str
     writer = csv.DictWriter(buf, fieldnames=columns)
     writer.writeheader()
     writer.writerows(rows)
-    made = {"report.md": ("\n".join(md) + "\n").encode(), "report.csv": buf.getvalue().encode()}
-    staged = sweep / f".report.rrd.{os.getpid()}.tmp"
-    try:
-        _record(staged, rows, records)
-        made["report.rrd"] = staged.read_bytes()
-        new = {name: _digest(data) for name, data in made.items()}
-        _write_manifest(sweep, {name: [*([ours[name]] if name in ours else []), new[name]] for name in OUTPUTS})
-        for name in ("report.md", "report.csv"):
-            atomic_write(sweep / name, lambda f, data=made[name]: f.write(data), binary=True)
-        os.replace(staged, sweep / "report.rrd")
-    finally:
-        staged.unlink(missing_ok=True)
+    made = {
+        "report.md": ("\n".join(md) + "\n").encode(),
+        "report.csv": buf.getvalue().encode(),
+        "report.rrd": _recording(rows, records),
+    }
+    new = {name: _digest(data) for name, data in made.items()}
+    _write_manifest(sweep, {name: [*([ours[name]] if name in ours else []), new[name]] for name in OUTPUTS})
+    for name, data in made.items():
+        atomic_write(sweep / name, lambda f, data=data: f.write(data), binary=True)
     _write_manifest(sweep, {name: [new[name]] for name in OUTPUTS})
 
 
@@ -327,12 +323,13 @@ def _normalised_rms(record: dict[str, Any]) -> dict[str, float]:
     return {j: float(rms[j]) / float(noise[j]) for j in rms if noise.get(j)}
 
 
-def _record(path: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> None:
-    """report.rrd: one bar chart per headline number, one bar (named in the legend) per job, thresholds drawn."""
+def _recording(rows: list[dict[str, Any]], records: list[dict[str, Any]] | None = None) -> bytes:
+    """report.rrd's bytes: one bar chart per headline number, one bar (named in the legend) per job, thresholds
+    drawn."""
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from harness.record import ROLE_COLORS, save_recording
+    from harness.record import ROLE_COLORS, recording_bytes
 
     ok = [r for r in rows if r["status"] == "ok"]
     numeric = [c for c in dict.fromkeys(k for r in ok for k in r) if all(isinstance(r.get(c), float) for r in ok)]
@@ -398,7 +395,7 @@ def _record(path: Path, rows: list[dict[str, Any]], records: list[dict[str, Any]
         )
         rec.log("runs/table", rr.TextDocument(text, media_type="text/markdown"), static=True)
 
-    save_recording(path, "sysid-report", fill)
+    return recording_bytes("sysid-report", fill)
 
 
 def _title(column: str) -> str:

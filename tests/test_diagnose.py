@@ -446,7 +446,7 @@ def test_a_record_shorter_than_one_simulation_window_names_the_key() -> None:
 
 @pytest.mark.parametrize("own_zeros", [False, True])
 def test_a_ramp_below_sliding_speed_is_taken_only_by_its_margin_and_only_wider_than_the_nominal_one(
-    monkeypatch: pytest.MonkeyPatch, own_zeros: bool
+    own_zeros: bool,
 ) -> None:
     """`_slow_friction_ramps`' rule, with the calibrated MJCF's prediction replaced by a table of errors per ramp.
     A joint takes the ramp of least training error only where it is 10 % below the narrow shape's: 0.1 rad/s, 50 %
@@ -465,10 +465,9 @@ def test_a_ramp_below_sliding_speed_is_taken_only_by_its_margin_and_only_wider_t
         3: {0.0: 1.0, 0.03: 0.95**0.5, 0.1: 0.97**0.5, 0.3: 0.99**0.5},
     }
 
-    def predict(model: object, ext: Extension, records: list[object]) -> np.ndarray:
+    def predict(ext: Extension) -> np.ndarray:
         return np.column_stack([np.full(n, error[j][float(ext.friction_speed[j])]) for j in range(nv)])
 
-    monkeypatch.setattr(dg, "_predict_records", predict)
     zeros = np.zeros(nv)
     ext = Extension(zeros, zeros, zeros, zeros, zeros, np.zeros(10 * nv), zeros, zeros, np.ones(nv), zeros)
     signals = type(
@@ -488,10 +487,9 @@ def test_a_ramp_below_sliding_speed_is_taken_only_by_its_margin_and_only_wider_t
         return dg._slow_friction_ramps(
             ext,
             sliding,
-            [None, None],  # type: ignore[list-item]
             signals,  # type: ignore[arg-type]
             ("a", "b", "c", "d"),
-            lambda e: None,  # type: ignore[arg-type,return-value]
+            predict,
             preference=0.1,
             nominal_speed=nominal,
             own_zeros=zeros_fitted,

@@ -218,12 +218,11 @@ def test_c1s_elbow_friction_below_sliding_speed_is_a_ramp_where_a_file_holds_it_
     import mujoco
     import numpy as np
     from omegaconf import OmegaConf
-    from scipy import signal
 
-    from dynamics.friction import friction_parameters, friction_solver, ideal_friction_speed
+    from bench.diagnose import _judged_states, widened
+    from dynamics.friction import friction_parameters, ideal_friction_speed
     from dynamics.plant import load_plant
     from envs.measured import read_measured
-    from identify.derivatives import derive_states
     from identify.diagnose.calibrate import mjcf_measured_torque
 
     folder = shared_data / "dfki_double_pendulum_c1"
@@ -255,17 +254,13 @@ def test_c1s_elbow_friction_below_sliding_speed_is_a_ramp_where_a_file_holds_it_
     assert info["elbow"]["training_rms_ramp"] ** 2 < 0.9 * info["elbow"]["training_rms_before"] ** 2
     assert speed[1] == pytest.approx(ramp, rel=1e-6) and speed[0] < 0.01
 
-    narrow = mujoco.MjModel.from_xml_path(str(tmp_path / "two_link_calibrated.xml"))
-    fc, invweight = float(narrow.dof_frictionloss[1]), float(narrow.dof_invweight0[1])
-    solref, solimp, _ = friction_solver(
-        fc, ideal_friction_speed(fc, invweight, narrow.opt.timestep), invweight, narrow.opt.timestep
+    # the same MJCF with the elbow's friction MuJoCo's narrowest stable ramp again, as the fit wrote it before
+    narrow = widened(
+        model, ideal_friction_speed(model.dof_frictionloss[1], model.dof_invweight0[1], model.opt.timestep)
     )
-    narrow.dof_solref[1], narrow.dof_solimp[1] = solref, solimp
     columns = OmegaConf.to_container(cfg.data.columns)
     data = read_measured(folder / held_out, load_plant("two_link"), columns=columns)  # type: ignore[arg-type]
-    states = derive_states(data, "butterworth", cutoff_hz=5.0)
-    sos = signal.butter(4, 5.0, fs=1.0 / data.dt, output="sos")
-    measured = signal.sosfiltfilt(sos, data.tau, axis=0)[states.valid]
+    states, measured = _judged_states(data)
 
     def elbow_rms(m: mujoco.MjModel) -> float:
         pred = mjcf_measured_torque(m, data.time, states.q, states.dq, states.ddq)[states.valid]

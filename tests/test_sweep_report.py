@@ -207,23 +207,23 @@ def test_a_report_written_before_the_manifest_is_still_replaced_and_one_with_not
 def test_a_report_cut_short_while_it_is_put_in_place_is_still_its_own(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """The manifest accepts the old and the new version of each file before any is put in place: a run that
     dies after report.md is replaced (here the recording's rename fails) leaves a folder the next run replaces."""
-    import harness.report as report
+    import os
 
     _one_job_sweep(tmp_path)
     assert main([str(tmp_path)]) == 0
     (tmp_path / "1_pendulum" / ".hydra").mkdir(parents=True)  # the sweep grew: every file changes
     (tmp_path / "1_pendulum" / "results.json").write_text(json.dumps(RESULTS))
-    real_replace = report.os.replace
+    real_replace = os.replace
 
     def failing(src: object, dst: object) -> None:
         if str(dst).endswith("report.rrd"):
             raise OSError(28, "No space left on device", str(dst))
         real_replace(src, dst)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(report.os, "replace", failing)
+    monkeypatch.setattr(os, "replace", failing)
     assert main([str(tmp_path)]) == 2
     assert "2 jobs, 2 ok, 0 failed" in (tmp_path / "report.md").read_text()  # the new report.md is in place
-    assert not list(tmp_path.glob(".report.rrd.*"))  # the staged recording is gone
-    monkeypatch.setattr(report.os, "replace", real_replace)
+    assert not list(tmp_path.glob(".report.rrd.*"))  # no temporary file of the recording is left
+    monkeypatch.setattr(os, "replace", real_replace)
     assert main([str(tmp_path)]) == 0
     assert set(json.loads((tmp_path / ".sysid_report.json").read_text())) == {"report.md", "report.csv", "report.rrd"}

@@ -871,14 +871,16 @@ def diagnose(
 
     with scratch_folder("sysid_diagnose_") as tmp:
 
+        def build(ext: Extension, comment: str = "", suffix: str = "trial") -> tuple[str, Plant]:
+            """The calibrated MJCF of `ext` and its model, written as <system>_<suffix>.xml in the scratch folder
+            (a trial's file does not replace the calibrated one its Plant was read from)."""
+            text = calibrated_xml(plant, ext, metric=metric, comment=comment)
+            return text, simulated(plant_from_xml(text, f"{plant.name}_{suffix}", tmp))
+
         def calibrate(ext: Extension, named: list[Finding]) -> tuple[str, Plant, np.ndarray]:
             comment = ", ".join(f"{f.effect} {f.target}".strip() for f in named) or "no effect found"
-            text = calibrated_xml(plant, ext, metric=metric, comment=comment)
-            model = simulated(plant_from_xml(text, f"{plant.name}_calibrated", tmp))
+            text, model = build(ext, comment, "calibrated")
             return text, model, _predict_records(model, ext, va)
-
-        def build(ext: Extension) -> Plant:
-            return simulated(plant_from_xml(calibrated_xml(plant, ext, metric=metric), f"{plant.name}_ramp", tmp))
 
         xml, calibrated, preds_cal = calibrate(ext, findings)
         held_out = _held_out_mse(s_va, s_va.tau_nominal, weights), _held_out_mse(s_va, preds_cal, weights)
@@ -898,10 +900,9 @@ def diagnose(
         ramped, ramps = _slow_friction_ramps(
             ext,
             None if sliding is None else sliding | ~named,
-            tr,
             s_tr,
             names,
-            build,
+            lambda e: _predict_records(build(e)[1], e, tr),
             preference=selection.native_preference,
             nominal_speed=np.asarray(plant.friction_speed, float),
             own_zeros=m_t > 0,
@@ -1734,10 +1735,9 @@ def _weak_findings(findings: list[Finding], min_z: float) -> list[tuple[Finding,
 def _slow_friction_ramps(
     ext: Extension,
     sliding: np.ndarray | None,
-    records: list[_Record],
     s: Signals,
     names: tuple[str, ...],
-    build: Callable[[Extension], Plant],
+    predict: Callable[[Extension], np.ndarray],
     *,
     preference: float,
     nominal_speed: np.ndarray,
@@ -1753,8 +1753,9 @@ def _slow_friction_ramps(
     drive holds at zero torque while it sticks (the DFKI C.1 elbow, commanded zero in a whole file) reads 0 there
     whatever its friction holds. Each of the ramps `SMOOTH_COULOMB_SPEEDS` is tried in turn, its Fc unchanged (the
     torques of rows sliding faster than the ramp are the fitted ones), and the calibrated MJCF predicts every
-    training record as MuJoCo applies it (`build`, the calibrated model of an Extension); a joint takes the ramp
-    with the lowest mean square error over its used training torques in the analysis band, where that is below
+    training record as MuJoCo applies it (`predict`: an Extension's calibrated MJCF's (N, nv) torque on the rows
+    of `s`); a joint takes the ramp with the lowest mean square error over its used training torques in the
+    analysis band, where that is below
     the narrow shape's by `preference` of it (`SelectionOptions.native_preference`, as the selection asks of a
     ramp against the ideal shape: the width is a choice from a grid). The final fit's coefficients never saw
     these rows. On the DFKI C.1 logs, one file of which commands the elbow zero torque throughout, the elbow takes
@@ -1779,26 +1780,28 @@ def _slow_friction_ramps(
     if not joints.size:
         return ext, {}
     count = np.maximum(np.count_nonzero(used, axis=0), 1)
+    records = np.unique(s.record)
 
-    def errors(speeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(nv,) mean square error over the used training torques, and (records, nv) per record."""
-        trial = dataclasses.replace(ext, friction_speed=speeds, notes=[], custom=list(ext.custom))
-        error = np.where(used, s.smooth(s.tau) - s.smooth(_predict_records(build(trial), trial, records)), 0.0)
+    def errors(vt: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """(nv,) mean square error over the used training torques, and (records, nv) per record, with every
+        tried joint's friction a ramp of width vt (None: as fitted)."""
+        speeds = ext.friction_speed.copy()
+        if vt is not None:
+            speeds[joints] = vt
+        trial = dataclasses.replace(ext, friction_speed=speeds, notes=[])  # calibrated_xml adds to the notes
+        error = np.where(used, s.smooth(s.tau) - s.smooth(predict(trial)), 0.0)
         sse = np.zeros((len(records), error.shape[1]))
-        for r in range(len(records)):
+        for k, r in enumerate(records):
             rows = s.record == r
             e = error[rows]
             if own_zeros:
                 n_r = np.maximum(np.count_nonzero(used[rows], axis=0), 1)
                 e = np.where(used[rows], e - e.sum(axis=0) / n_r, 0.0)
-            sse[r] = np.sum(e**2, axis=0)
+            sse[k] = np.sum(e**2, axis=0)
         return sse.sum(axis=0) / count, sse
 
-    before, before_r = errors(ext.friction_speed.copy())
-    tried = {
-        vt: errors(np.where(np.isin(np.arange(len(names)), joints), vt, ext.friction_speed))
-        for vt in SMOOTH_COULOMB_SPEEDS
-    }
+    before, before_r = errors(None)
+    tried = {vt: errors(vt) for vt in SMOOTH_COULOMB_SPEEDS}
     speeds = ext.friction_speed.copy()
     chosen: dict[str, dict[str, Any]] = {}
     for j in joints:
