@@ -39,7 +39,13 @@ from harness.results import run_job, to_jsonable, write_json
 from harness.rundir import RunFolder, RunFolderError, check_output_override, claim, kept_on_failure
 from harness.setup import CONF_DIR, as_strings, load_system, own_config_folder, with_auto_system, with_model_defaults
 from harness.validate import ConfigError, check_command_line, flag_set_by, validate_diagnose_config
-from identify.derivatives import derive_states, excitation_bandwidth_hz, reduce_record, reduction_factor
+from identify.derivatives import (
+    derive_states,
+    differences_cutoff_limit_hz,
+    excitation_bandwidth_hz,
+    reduce_record,
+    reduction_factor,
+)
 from identify.diagnose import (
     Diagnosis,
     ReferenceModel,
@@ -134,7 +140,8 @@ def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
 
 def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or below
-    `MIN_FILTER_CYCLES` cycles over the shortest one, or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
+    `MIN_FILTER_CYCLES` cycles over the shortest one, a state cut-off above an eighth of its rate where the states
+    are differences (`differences_cutoff_limit_hz`), or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
     samples or longer than the shortest file (known once read)."""
     slowest = max(datasets, key=lambda d: d.dt)
     shortest = min(datasets, key=lambda d: float(d.time[-1] - d.time[0]))
@@ -146,6 +153,14 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
                 f"{slowest.source} (sampled at {2 * nyquist:g} Hz)"
+            )
+        top = differences_cutoff_limit_hz(2 * nyquist)
+        differences = cfg.diagnose.get("derivatives", "butterworth") == "butterworth"
+        if name.endswith("cutoff_hz") and differences and value is not None and float(value) > top * 1.02:
+            raise ConfigError(
+                f"{name}={float(value):g} Hz is above {top:g} Hz, an eighth of the {2 * nyquist:g} Hz sampling of "
+                f"{slowest.source}: the differences that make the accelerations lose a fifth of them there and more "
+                "above (on clean data the diagnosis then names effects that are not there); lower it"
             )
         if value is not None and float(value) < lowest:
             raise ConfigError(
@@ -493,12 +508,18 @@ def _check_training_excitation(
         still = set.intersection(*(set(still_joints(d, plant.hinge)) for d in train))
         if not still:
             raise
-        j = min(still)
-        span = max(float(np.ptp(d.q[:, j])) for d in train)
+        joints = sorted(still)
+        spans = ", ".join(
+            f"q_{plant.joint_names[j]} spans at most {max(float(np.ptp(d.q[:, j])) for d in train):.3g} "
+            f"{'rad' if plant.hinge[j] else 'm'}"
+            for j in joints
+        )
+        named = " and ".join(repr(plant.joint_names[j]) for j in joints)
+        who, move, it = ("joint", "moves", "it") if len(joints) == 1 else ("joints", "move", "they")
         raise DataError(
-            f"{files}: joint {plant.joint_names[j]!r} never moves in any training file (q_{plant.joint_names[j]} "
-            f"spans at most {span:.3g} {'rad' if plant.hinge[j] else 'm'}; a frozen or unplugged encoder, or a joint "
-            f"held still), so {str(err).removeprefix(files + ': ')}: give a file in which it moves"
+            f"{files}: {who} {named} never {move} in any training file ({spans}; a frozen or unplugged encoder, or "
+            f"a joint held still), so {str(err).removeprefix(files + ': ')}: give a file in which {it} "
+            f"{'moves' if len(joints) == 1 else 'move'}"
         ) from None
 
 

@@ -42,7 +42,7 @@ from harness.setup import (
 )
 from harness.validate import ConfigError, check_command_line, check_driven, validate_run_config
 from identify.compare import compare_with_truth, linear_combination, predict_torque, torque_rms
-from identify.derivatives import States, derive_states
+from identify.derivatives import States, derive_states, differences_cutoff_limit_hz
 from identify.derived import DERIVED
 from identify.diagnose.diagnosis import SLIDING_FRACTION
 from identify.estimators import estimate
@@ -152,8 +152,9 @@ COULOMB_MIN_CUTOFF_HZ = 15.0
 
 def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any]:
     """Options of the derivative method: the cut-off (config, or 10 x the highest harmonic, >= 5 Hz, and
-    >= `COULOMB_MIN_CUTOFF_HZ` where Coulomb friction is fitted) and, for the spectral method, the excitation's
-    period (it keeps only the excitation's harmonics)."""
+    >= `COULOMB_MIN_CUTOFF_HZ` where Coulomb friction is fitted; for `butterworth` at most an eighth of the rate,
+    `differences_cutoff_limit_hz`, still a few times the top harmonic, which `validate` keeps below Nyquist) and,
+    for the spectral method, the excitation's period (it keeps only the excitation's harmonics)."""
     method = cfg.identify.derivatives
     if method == "simulator":
         return {}
@@ -162,6 +163,8 @@ def _derivative_options(cfg: DictConfig, design: FourierDesign) -> dict[str, Any
         cutoff = max(10.0 * design.harmonics * design.base_freq_hz, 5.0)
         if "coulomb_friction" in (cfg.system.get("effects") or []):
             cutoff = max(cutoff, COULOMB_MIN_CUTOFF_HZ)
+        if method == "butterworth":  # where the differences are accurate: a slow log (a coarse physics step)
+            cutoff = min(cutoff, differences_cutoff_limit_hz(float(cfg.system.sensor.sample_rate_hz)))
     options: dict[str, Any] = {"cutoff_hz": float(cutoff)}
     if method == "spectral":
         options["period_s"] = design.period_s

@@ -205,6 +205,19 @@ def _check_harmonics(cfg: DictConfig) -> None:
         raise ConfigError(f"excitation.harmonics must be between 1 and {limit}, got {h}: {why}")
 
 
+def _check_differences_cutoff(cfg: DictConfig, cutoff: float | None, fs: float) -> None:
+    """Refuse an identify.cutoff_hz above an eighth of the rate where the states are differences (`butterworth`)."""
+    from identify.derivatives import differences_cutoff_limit_hz
+
+    top = differences_cutoff_limit_hz(fs)
+    if cutoff is not None and OmegaConf.select(cfg, "identify.derivatives") == "butterworth" and cutoff > top * 1.02:
+        raise ConfigError(
+            f"identify.cutoff_hz={cutoff:g} Hz is above {top:g} Hz, an eighth of system.sensor.sample_rate_hz={fs:g}: "
+            "the differences that make the accelerations lose a fifth of them there and more above; lower it (or "
+            "set identify.derivatives=spectral or kalman)"
+        )
+
+
 def check_driven(plant: Plant) -> None:
     """Refuse, for a simulated run, a model none of whose joints an actuator drives (nothing could excite it), or
     with an actuator that gives torque of one sign only (a ctrlrange "0 20", a zero gain).
@@ -271,7 +284,8 @@ def validate_run_config(cfg: DictConfig, plant: Plant | None = None) -> None:
                 f"system.sensor.sample_rate_hz={fs:g} makes a record of {rows:.3g} samples; at most "
                 f"{MAX_RECORD_ROWS:.0e} are simulated (memory): lower {key} or the sample rate"
             )
-    _number(cfg, "identify.cutoff_hz", low=0.0, low_open=True, high=fs / 2.0, high_open=True, optional=True)
+    cutoff = _number(cfg, "identify.cutoff_hz", low=0.0, low_open=True, high=fs / 2.0, high_open=True, optional=True)
+    _check_differences_cutoff(cfg, cutoff, fs)
     _number(cfg, "system.limits.range_margin", low=0.0, high=0.49)
     if OmegaConf.select(cfg, "system.limits.clearance_m") is not None:
         _number(cfg, "system.limits.clearance_m", low=0.0)

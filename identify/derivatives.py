@@ -3,7 +3,8 @@
 - `simulator`: the simulator's exact states (only simulated datasets carry them): the noise-free reference.
 - `butterworth`: zero-phase Butterworth low-pass of q (filtfilt), then central differences. The filter's
   edge effects are either trimmed (`edges="trim"`) or avoided by periodic padding (`edges="periodic"`, for
-  records that span whole periods of a periodic excitation).
+  records that span whole periods of a periodic excitation). Its cut-off is at most an eighth of the rate
+  (`differences_cutoff_limit_hz`): above it the differences lose a fifth of the acceleration and more.
 - `spectral`: differentiation in the frequency domain (multiplication by i omega) over the whole periods of
   a periodic excitation: exact for a band-limited periodic signal, no edge effects, and with
   `harmonics_only` every bin that is not a harmonic of the excitation (pure noise) is dropped.
@@ -31,8 +32,10 @@ from envs.dataset import Dataset
 
 __all__ = [
     "DERIVATIVES",
+    "FOURTH_ORDER_BAND",
     "States",
     "derive_states",
+    "differences_cutoff_limit_hz",
     "excitation_bandwidth_hz",
     "gradient",
     "reduce_record",
@@ -123,7 +126,9 @@ FOURTH_ORDER_BAND = 0.125
 
 def _needs_fourth_order(cutoff: float, fs: float) -> bool:
     x = 2 * np.pi * cutoff / fs
-    return bool(1 - (np.sin(x) / x) ** 2 > SECOND_ORDER_LOSS and cutoff <= FOURTH_ORDER_BAND * fs)
+    return bool(
+        1 - (np.sin(x) / x) ** 2 > SECOND_ORDER_LOSS and cutoff <= FOURTH_ORDER_BAND * fs * (1 + _RATE_TOLERANCE)
+    )
 
 
 def _fourth_order(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, h: float) -> None:
@@ -158,11 +163,35 @@ def _regular_fs(data: Dataset) -> float:
     return 1.0 / data.dt
 
 
-def _cutoff(data: Dataset, fs: float, cutoff_hz: float | None, cutoff_factor: float) -> float:
+def differences_cutoff_limit_hz(fs: float) -> float:
+    """The highest cut-off [Hz] of the `butterworth` method at sampling rate `fs` [Hz]: `FOURTH_ORDER_BAND` of it
+    (an eighth). Up to it the differences are made exact to 0.4 % of the acceleration (`_fourth_order`); above it
+    they are second-order only and lose (sin x / x)^2 of it, a fifth at fs / 8 and more above: on clean two-link
+    logs at 500 Hz a 120 Hz cut-off named a rigid-body change that is not there (sysid-run's, compared below 120 Hz;
+    the testbed's, below 62.5 Hz), 60 Hz none."""
+    return FOURTH_ORDER_BAND * fs
+
+
+_RATE_TOLERANCE = 0.02  # a cut-off set at the limit passes a log whose median step jitters (1 % at most)
+
+
+def _cutoff(
+    data: Dataset, fs: float, cutoff_hz: float | None, cutoff_factor: float, *, differences: bool = False
+) -> float:
+    """The filter's cut-off [Hz]: `cutoff_hz`, or `cutoff_factor` times the excitation's bandwidth; with
+    `differences` (states by finite differences) at most `differences_cutoff_limit_hz`, an explicit one above it
+    refused, otherwise at most 0.4 of the rate."""
+    top = differences_cutoff_limit_hz(fs) if differences else 0.4 * fs
     if cutoff_hz is None:
-        cutoff_hz = min(cutoff_factor * excitation_bandwidth_hz(data.q, fs), 0.4 * fs)
+        cutoff_hz = min(cutoff_factor * excitation_bandwidth_hz(data.q, fs), top)
     if not 0 < cutoff_hz < 0.5 * fs:
         raise ValueError(f"cutoff_hz must lie in (0, {0.5 * fs:g}) Hz for a {fs:g} Hz signal, got {cutoff_hz}")
+    if differences and cutoff_hz > top * (1 + _RATE_TOLERANCE):
+        raise DataError(
+            f"{data.source}: cutoff_hz={cutoff_hz:g} Hz is above {top:g} Hz, an eighth of its {fs:g} Hz sampling: "
+            "the differences that make the accelerations lose a fifth of them there and more above; lower it (or "
+            "derive the states by the 'spectral' or 'kalman' method)"
+        )
     return float(cutoff_hz)
 
 
@@ -214,7 +243,7 @@ def _butterworth(
     decimate: int = 1,
 ) -> States:
     fs = _regular_fs(data)
-    cutoff = _cutoff(data, fs, cutoff_hz, cutoff_factor)
+    cutoff = _cutoff(data, fs, cutoff_hz, cutoff_factor, differences=True)
     sos = signal.butter(order, cutoff, fs=fs, output="sos")
     if edges == "trim":
         if data.n_samples <= 3 * (2 * len(sos) + 1):  # not longer than SciPy's padding (at most this): none trusted
@@ -356,7 +385,13 @@ def state_cutoff_hz(data: Dataset, method: str, **options: Any) -> float | None:
         cutoff = derived.get("cutoff_hz")
         return float(cutoff) if cutoff is not None and derived.get("method") not in ("simulator", "given") else None
     fs = 1.0 / float(np.median(np.diff(data.time)))
-    return _cutoff(data, fs, options.get("cutoff_hz"), float(options.get("cutoff_factor", 4.0)))
+    return _cutoff(
+        data,
+        fs,
+        options.get("cutoff_hz"),
+        float(options.get("cutoff_factor", 4.0)),
+        differences=method == "butterworth",
+    )
 
 
 MIN_TRUSTED_ROWS = 10  # fewest rows the derivative filter must trust in a record
@@ -446,7 +481,8 @@ def reduce_record(data: Dataset, method: str, factor: int, **options: Any) -> Da
         return (x if sos is None else signal.sosfiltfilt(sos, x))[keep]
 
     if options.get("cutoff_hz") is None and method not in ("simulator", "given"):  # one cut-off for all joints
-        options = {**options, "cutoff_hz": _cutoff(data, fs, None, float(options.get("cutoff_factor", 4.0)))}
+        derived = _cutoff(data, fs, None, float(options.get("cutoff_factor", 4.0)), differences=method == "butterworth")
+        options = {**options, "cutoff_hz": derived}
     keep: np.ndarray | None = None
     blocks: dict[str, list[np.ndarray]] = {"q": [], "dq": [], "ddq": []}
     for j, name in enumerate(data.joint_names):

@@ -388,6 +388,9 @@ def test_a_joint_frozen_in_every_training_file_is_named_in_the_refusal(tmp_path:
     with pytest.raises(DataError, match=r"joint 'elbow' never moves in any training file .* so the data do not excite"):
         _check_training_excitation(plant, (frozen,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
     _check_training_excitation(plant, (train,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
+    both = dataclasses.replace(train, q=np.full_like(train.q, 0.1))  # every joint named, not only the first
+    with pytest.raises(DataError, match=r"joints 'shoulder' and 'elbow' never move .* q_elbow spans at most 0 rad"):
+        _check_training_excitation(plant, (both,), ("armature",), "butterworth", {"cutoff_hz": 10.0})
 
 
 def test_a_band_above_the_state_cut_off_is_lowered_and_said(tmp_path: Path) -> None:

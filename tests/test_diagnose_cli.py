@@ -183,6 +183,20 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("key", ["diagnose.cutoff_hz", "data.cutoff_hz"])
+def test_a_state_cut_off_above_an_eighth_of_the_files_rate_is_refused(
+    csv_files: list[Path], tmp_path: Path, key: str
+) -> None:
+    """Below the Nyquist frequency, but above 62.5 Hz at 500 Hz the differences lose a fifth of the acceleration
+    and more: clean two-link data from sysid-run at 120 Hz were named a rigid-body change and an elbow damping (the
+    torques compared below 120 Hz), where 60 Hz names nothing. Refused by its key once the files' rate is known;
+    nothing is written."""
+    with pytest.raises(ConfigError, match=rf"{key}=100 Hz is above 62\.5 Hz, an eighth of the 500 Hz sampling of "):
+        cli.run(_config(csv_files, tmp_path, f"{key}=100"))
+    assert not any(tmp_path.iterdir())
+    cli.run(_config(csv_files, tmp_path, f"{key}=62.5", "diagnose.recording=false", "diagnose.final_fit=false"))
+
+
 def test_the_state_filter_is_the_data_configs_unless_diagnose_sets_one(csv_files: list[Path], tmp_path: Path) -> None:
     """The angles' cut-off before they are differentiated: `diagnose.cutoff_hz` when set, else the data config's
     `cutoff_hz` (the DFKI configs: 5 Hz, the band their models are judged in, so that the fit sees the judge's

@@ -529,6 +529,19 @@ def test_a_record_too_long_to_hold_is_refused_before_anything_is_allocated(overr
         validate_run_config(cfg, load_plant("pendulum"))
 
 
+def test_the_runs_derived_state_cut_off_stays_where_differences_are_accurate() -> None:
+    """10 x the top harmonic, at least 5 Hz: on a model stepped at 50 ms (20 Hz samples) that was 5 Hz, which the
+    differences cannot follow (above an eighth of the rate they lose a fifth of the acceleration and more, and
+    the filter now refuses such a cut-off); it is capped at 2.5 Hz, still 5 x the 0.5 Hz top harmonic."""
+    from excitation.fourier import FourierDesign
+    from harness.run import _derivative_options
+
+    design = FourierDesign(0.1, np.zeros((1, 5)), np.zeros((1, 5)), np.zeros(1))
+    for rate, cutoff in ((20.0, 2.5), (500.0, 5.0)):
+        cfg = compose_config(["system=pendulum", f"system.sensor.sample_rate_hz={rate}"])
+        assert _derivative_options(cfg, design)["cutoff_hz"] == pytest.approx(cutoff)
+
+
 def test_harmonics_are_bounded_by_the_sampling() -> None:
     cfg = compose_config(["system=pendulum", "excitation.harmonics=30", "system.sensor.sample_rate_hz=20"])
     with pytest.raises(ConfigError, match=r"between 1 and .* Nyquist frequency 10 Hz"):
@@ -544,6 +557,10 @@ def test_harmonics_are_bounded_by_the_sampling() -> None:
             r"system\.base_freq_hz must be <= 25 at system\.sensor\.sample_rate_hz=500",
         ),
         (["system=pendulum", "identify.cutoff_hz=250"], r"identify\.cutoff_hz must be < 250, got 250"),
+        (
+            ["system=pendulum", "identify.cutoff_hz=100"],
+            r"identify\.cutoff_hz=100 Hz is above 62\.5 Hz, an eighth of system\.sensor\.sample_rate_hz=500: ",
+        ),
         (
             [f"system.mjcf={REPO / 'mjcf' / 'two_link.xml'}", "system.limits.clearance_m=-1"],
             r"system\.limits\.clearance_m must be >= 0, got -1",
