@@ -192,7 +192,10 @@ def make_prior(model: ParameterModel, spec: PriorSpec, rng: np.random.Generator,
                 )
             plant = model.plant
         else:
-            plant = load_plant(spec.mjcf)
+            try:
+                plant = load_plant(spec.mjcf)
+            except ValueError as err:  # ModelError too: the key named, as system.mjcf's are
+                raise type(err)(f"prior.mjcf: {err}") from None
             if plant.joint_names != model.plant.joint_names:
                 raise ValueError(
                     f"prior.mjcf {spec.mjcf}: joints {list(plant.joint_names)} differ from the system's "

@@ -32,9 +32,11 @@ import json
 import re
 import warnings
 import zlib
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from decimal import ROUND_FLOOR, Decimal, InvalidOperation
+from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -149,7 +151,9 @@ def read_measured(
         Dataset with `time` (N,) [s] on a uniform grid; `q` [rad], `tau` [N m] and the optional `dq` [rad/s]
         and `tau_cmd` [N m], each (N, nv); zero torque on unactuated joints; `source` the path; `meta` with `repairs`
         (tuple of `Repair`), `columns` (ours -> the file's column, with any scale and offset),
-        `ignored_columns`, `rows_read`, `sample_rate_hz`.
+        `ignored_columns`, `rows_read`, `sample_rate_hz`, `time_origin_s` (a time column in Unix time, 1e6 s
+        or more on its first row, is read less the whole seconds of that row, exactly: `time` + `time_origin_s`
+        is the file's time; 0 for other files).
 
     Raises:
         DataError: a check failed; the message names the file, column and row.
@@ -160,7 +164,7 @@ def read_measured(
     header, delimiter = _read_header(file)
     sources, ignored = _resolve_columns(plant, header, columns, src)
     labels = _labels(sources)
-    arrays, values, rows_read = _read_body(file, header, delimiter, sources, labels, plant)
+    arrays, values, rows_read, time_origin = _read_body(file, header, delimiter, sources, labels, plant)
     _check_length(rows_read, max(min_samples, 2), src, "rows")  # first: the checks below need a time step
     _check_finite(values, labels, src)
     t = values["time"]
@@ -231,6 +235,7 @@ def read_measured(
         "ignored_columns": tuple(ignored),
         "rows_read": rows_read,
         "sample_rate_hz": float(1.0 / np.median(np.diff(t))),
+        "time_origin_s": time_origin,
     }
     if resampled is not None:  # interpolation blurs a torque's plateau at a limit: keep the logged values
         meta.update({f"logged_{k}": v.copy() for k, v in logged.items() if v is not None})
@@ -516,7 +521,7 @@ def _read_body(
     sources: dict[str, _Column],
     labels: dict[str, str],
     plant: Plant,
-) -> tuple[dict[str, np.ndarray | None], dict[str, np.ndarray], int]:
+) -> tuple[dict[str, np.ndarray | None], dict[str, np.ndarray], int, float]:
     """The used columns, read block by block (numpy's C reader) straight into the (N, nv) arrays of the dataset:
     memory is the dataset itself plus one block, whatever the file's length. The other columns are not converted
     (they may hold text); quoted numbers are read.
@@ -525,6 +530,7 @@ def _read_body(
         arrays: q, dq, tau, tau_cmd ((N, nv); dq and tau_cmd None when absent).
         values: each used column by our name, as a view into `arrays`.
         rows: the data rows read.
+        time_origin: what the time column was read relative to [s] (`_time_origin`; 0 for most files).
     """
     path = file.path
     names, nv, act = plant.joint_names, plant.nv, [j for j in range(plant.nv) if plant.actuated[j]]
@@ -554,6 +560,11 @@ def _read_body(
 
     usecols = sorted({c.index for c in sources.values()})
     position = {index: k for k, index in enumerate(usecols)}  # a file column's place in the table read
+    origin = _time_origin(file, delimiter, sources["time"].index)
+    # a time far from 0 (Unix time, 1.7e9 s) read as a double keeps 2.4e-7 s of it: read relative to its origin
+    converters: dict[int | str, Callable[[str], float]] | None = (
+        {sources["time"].index: partial(_relative, origin)} if origin else None
+    )
     # every column converted: numpy checks each row's field count itself, and a quote left open can only swallow
     # lines into a cell that is then no number, so the lines need no check on the way (10-20 % of the time)
     every = len(usecols) == len(header)
@@ -573,6 +584,7 @@ def _read_body(
                         comments=None,
                         usecols=None if every else usecols,
                         quotechar='"',
+                        converters=converters,
                     )
             except (DataError, UnicodeDecodeError):  # both ValueErrors: from the lines, not from a cell
                 raise
@@ -595,7 +607,38 @@ def _read_body(
     arrays.update({k: None if v is None else v[:n] for k, v in arrays.items()})
     values = {name: target(name) for name in sources}
     del arrays["time"]  # in `values`; the rest are the dataset's blocks
-    return arrays, values, n
+    return arrays, values, n, float(origin) * sources["time"].scale
+
+
+TIME_ORIGIN_S = 1e6  # [s] a first time stamp this far from 0 is read relative to its whole part (`_time_origin`)
+
+
+def _time_origin(file: _TextFile, delimiter: str, index: int) -> Decimal:
+    """The whole part of the first row's time stamp where it is `TIME_ORIGIN_S` or more (Unix time: a double
+    resolves 1.7e9 s to 2.4e-7 s, 1e-4 of a 500 Hz step, which moves the derivatives' grid); 0 otherwise, or where
+    that cell is no number (the reader then names it)."""
+    with file.open() as f:
+        f.readline()
+        for text in f:
+            if not text.strip():
+                continue
+            cells = next(csv.reader([text], delimiter=delimiter), [])
+            try:
+                first = Decimal(cells[index].strip())
+            except (IndexError, InvalidOperation):
+                return Decimal(0)
+            if not first.is_finite() or abs(first) < TIME_ORIGIN_S:
+                return Decimal(0)
+            return first.to_integral_value(rounding=ROUND_FLOOR)
+    return Decimal(0)
+
+
+def _relative(origin: Decimal, text: str) -> float:
+    """A time cell less `origin`, exactly in decimal, then as a double."""
+    try:
+        return float(Decimal(text.strip()) - origin)
+    except InvalidOperation:
+        raise ValueError(f"could not convert string to float: {text!r}") from None
 
 
 def _locate_bad_cell(
@@ -1119,6 +1162,22 @@ def _cut(arrays: dict[str, np.ndarray | None], start: int, stop: int) -> dict[st
     return {k: None if a is None else a[start:stop] for k, a in arrays.items()}
 
 
+def _check_max_speed(x: np.ndarray, dt: np.ndarray, max_speed: float, noise: float, *, label: str, src: str) -> None:
+    """Refuse a `max_speed` the angle's own sustained rate exceeds (its rate after a running median over
+    `_RATE_WINDOW` steps, which glitches cannot move, at its 99th percentile, less what its noise adds): the
+    fastest the joint can move cannot be slower than it moves."""
+    if len(x) < 2:
+        return
+    rate = median_filter(np.abs(np.diff(x)) / dt, size=min(_RATE_WINDOW, len(x) - 1), mode="nearest")
+    sustained = float(np.percentile(rate, 99.0)) - 3.0 * np.sqrt(2.0) * noise / float(np.median(dt))
+    if sustained > 1.05 * max_speed:
+        raise DataError(
+            f"{src}: {label} moves at {sustained:.3g} rad/s (m/s on a slide; 99th percentile of its rate), faster than "
+            f"max_speed={max_speed:g} (data.max_speed), the fastest the joint can move: raise it, or leave it null "
+            "to bound the jumps called glitches from the data"
+        )
+
+
 def _repair_joint(
     t: np.ndarray,
     x: np.ndarray,
@@ -1159,6 +1218,8 @@ def _repair_joint(
         noise = 1.4826 * float(np.median(np.abs(d2, out=d2), overwrite_input=True)) / np.sqrt(6.0)
         del d2
     floor = max(_MIN_JUMP, 10.0 * noise)
+    if max_speed is not None:
+        _check_max_speed(x, dt_eff, float(max_speed), noise, label=label, src=src)
     bound = np.multiply(dt_eff, speed, out=dt_eff)
     bound += floor
     flagged = np.flatnonzero(np.abs(s) > bound)

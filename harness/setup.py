@@ -137,6 +137,11 @@ def load_system(cfg: DictConfig) -> Plant:
         ConfigError: the value names no model (an unknown system, a missing file or folder, a log): the key named.
         ModelError: the model itself cannot be used (MuJoCo rejects it, unsupported joints, ...).
     """
+    if OmegaConf.is_missing(cfg.system, "mjcf"):  # system=auto (a user's config) without its model
+        raise ConfigError(
+            "system.mjcf is not set: give the robot's model, e.g. system.mjcf=robot.xml (an MJCF, or a URDF), or "
+            f"a built-in system such as system=two_link ({', '.join(SYSTEMS)})"
+        )
     name = cfg.system.get("name")
     if name is not None:
         check_system_name(str(name))

@@ -240,6 +240,19 @@ def test_system_name_names_the_outputs_and_must_be_a_plain_name(tmp_path: Path) 
     assert load_system(compose_config(["system=two_link", f"system.mjcf={other}", "system.name=mine"])).name == "mine"
 
 
+@pytest.mark.parametrize("config_name", ["config", "diagnose"])
+def test_a_users_system_config_without_its_model_asks_for_system_mjcf(config_name: str) -> None:
+    """`system=auto` left without `system.mjcf` was refused in OmegaConf's words ("Missing mandatory value:
+    system.mjcf; full_key: system.mjcf; object_type=dict"); both commands now say what to give."""
+    from harness.setup import load_system
+    from harness.validate import ConfigError
+
+    extra = ["data.path=run.csv"] if config_name == "diagnose" else []
+    cfg = compose_config(["system=auto", *extra], config_name=config_name)
+    with pytest.raises(ConfigError, match=r"^system\.mjcf is not set: give the robot's model, e\.g\. system\.mjcf="):
+        load_system(cfg)
+
+
 def test_failed_run_leaves_no_results(tmp_path: Path) -> None:
     # an acceleration bound too small for any motion: the excitation cannot be designed
     cfg = compose_config(["record=none", "system=pendulum", "system.limits.acceleration=1e-6"])

@@ -8,6 +8,7 @@ import os
 import re
 import warnings
 from collections.abc import Callable
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -293,6 +294,34 @@ def test_time_going_backwards_is_refused(tmp_path: Path, plant: Plant) -> None:
         read_measured(write(tmp_path / "back.csv", cols), plant)
 
 
+@pytest.mark.parametrize("form", ["{:.6f}", '"{:.6f}"', "{:.15e}"])
+def test_unix_time_stamps_are_read_to_the_microseconds_they_were_written_with(
+    tmp_path: Path, plant: Plant, form: str
+) -> None:
+    """Unix time (1.7e9 s) read as a double resolves 2.4e-7 s: each 2 ms step came out off by up to 1.2e-7 s, and a
+    diagnosis of such a file differed from the same file timed from 0 (its re-start windows and the rows it
+    trusted). The time column is read less the first row's whole seconds, in decimal, so that both read alike;
+    `meta["time_origin_s"]` keeps them. A bad cell is still named by row."""
+    cols = table()
+    relative = write(tmp_path / "zero.csv", {**cols, "time": np.round(cols["time"], 6)})
+    lines = relative.read_text().splitlines()
+    # the decimal text of each whole stamp, as a logger writes it
+    stamps = [form.format(Decimal("1700000000.25") + Decimal(line.split(",")[0])) for line in lines[1:]]
+    unix = tmp_path / "unix.csv"
+    body = [",".join([stamp, *line.split(",")[1:]]) for stamp, line in zip(stamps, lines[1:], strict=True)]
+    unix.write_text("\n".join([lines[0], *body]) + "\n")
+    a, b = read_measured(relative, plant), read_measured(unix, plant)
+    assert b.meta["time_origin_s"] == 1_700_000_000.0 and a.meta["time_origin_s"] == 0.0
+    np.testing.assert_allclose(b.time - 0.25, a.time, rtol=0, atol=1e-12)
+    assert np.max(np.abs(np.diff(b.time) - 0.002)) < 1e-12
+    np.testing.assert_array_equal(b.q, a.q)
+    bad = body[:]
+    bad[40] = "x" + bad[40]
+    unix.write_text("\n".join([lines[0], *bad]) + "\n")
+    with pytest.raises(DataError, match=r"column 'time', row 40 \(line 42\)"):
+        read_measured(unix, plant)
+
+
 def test_duplicate_time_is_refused(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     cols["time"][300] = cols["time"][299]
@@ -491,6 +520,20 @@ def test_glitches_are_interpolated_with_a_report(tmp_path: Path, plant: Plant) -
     assert report.kind == "glitch" and report.rows == (250, 600)
     assert "2 glitch(es) of 4 sample(s)" in report.message
     np.testing.assert_allclose(data.q[:, 1], clean, atol=1e-5)
+
+
+def test_a_max_speed_the_joints_move_faster_than_is_refused_and_one_above_bounds_the_glitches(
+    tmp_path: Path, plant: Plant
+) -> None:
+    """`max_speed` is the fastest a joint can move; one below what the angles do (0.001 rad/s, for joints that swing
+    at 3 and 8.5 rad/s at most) was taken silently. Its glitches still go at a max_speed above the motion."""
+    cols = table()
+    cols["q_elbow"][250] += 0.7
+    path = write(tmp_path / "fast.csv", cols)
+    with pytest.raises(DataError, match=r"fast\.csv: column 'q_\w+' moves at [0-9.]+ rad/s .* max_speed=0\.001 \("):
+        read_measured(path, plant, max_speed=0.001)
+    (report,) = read_measured(path, plant, max_speed=10.0).meta["repairs"]
+    assert report.kind == "glitch" and report.rows == (250,)
 
 
 @pytest.mark.parametrize("size", [1e30, 1e6, 30.0])

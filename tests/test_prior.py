@@ -78,3 +78,8 @@ def test_prior_mjcf_with_other_joints_is_refused() -> None:
         make_prior(
             model, PriorSpec(kind="mjcf", mjcf=str(mjcf_path("two_link"))), np.random.default_rng(0), simulated=True
         )
+    # a missing file is named by its key, as system.mjcf's is (it said only "model file not found: <path>")
+    with pytest.raises(ValueError, match=r"^prior\.mjcf: model file not found: .*nope\.xml"):
+        make_prior(
+            model, PriorSpec(kind="mjcf", mjcf="/nonexistent/nope.xml"), np.random.default_rng(0), simulated=True
+        )
