@@ -307,6 +307,35 @@ def _tendons(m: mujoco.MjModel) -> str:
     return f"tendon{'s' if len(out) > 1 else ''} {', '.join(out)}"
 
 
+def _check_polynomials(path: Path, m: mujoco.MjModel) -> None:
+    """Refuse MuJoCo 4's higher-order joint damping and stiffness (`damping="b0 b1 b2"`: b0 v + b1 v|v| + b2 v^3;
+    `stiffness="k0 k1 k2"`: k0 x + k1 x^2 + k2 x^3 about springref; an actuator's `damping` likewise): the harness
+    models both as linear, so it would identify and report a model MuJoCo does not simulate. Named with the fix."""
+    spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
+    damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+    for j in range(m.njnt):
+        name = _name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+        dof = int(m.jnt_dofadr[j])
+        for kind, on, first, higher, law in (
+            ("damping", damper_on, m.dof_damping[dof], m.dof_dampingpoly[dof], "b0 v + b1 v|v| + b2 v^3"),
+            ("stiffness", spring_on, m.jnt_stiffness[j], m.jnt_stiffnesspoly[j], "k0 x + k1 x^2 + k2 x^3"),
+        ):
+            if on and np.any(higher != 0):
+                given = " ".join(f"{v:g}" for v in (first, *higher))
+                raise ModelError(
+                    f'{path}: joint {name!r} has {kind}="{given}", MuJoCo\'s polynomial {kind} ({law}); the harness '
+                    f'models joint {kind} as linear: give {kind}="{first:g}" (its first value)'
+                )
+    for a in range(m.nu):
+        if damper_on and np.any(m.actuator_dampingpoly[a] != 0):
+            actuator = _name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
+            given = " ".join(f"{v:g}" for v in (m.actuator_damping[a], *m.actuator_dampingpoly[a]))
+            raise ModelError(
+                f'{path}: actuator {actuator!r} has damping="{given}", a polynomial damping on its transmission; '
+                "the harness reads damping from the joints, linear: remove it from the actuator"
+            )
+
+
 def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     """Refuse what the rigid-body regressor does not model: other joint types and joint couplings."""
     if m.njnt == 0:
@@ -329,6 +358,7 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         )
     if m.ntendon:
         raise ModelError(f"{path}: {_tendons(m)}: tendons are not supported; drive each joint by its own actuator")
+    _check_polynomials(path, m)
     for kind in ("damping", "armature"):  # MuJoCo 4: on the transmission, gear^2 times it on the joint
         values = getattr(m, f"actuator_{kind}")  # (nu,)
         if np.any(values != 0):
