@@ -14,7 +14,7 @@ import numpy as np
 from mujoco import rollout
 
 from dynamics.base import BaseParameters
-from dynamics.errors import RankDeficientError
+from dynamics.errors import InfeasibleExcitationError, RankDeficientError
 from dynamics.plant import Plant
 from dynamics.regressor import ParameterModel
 from excitation.criteria import conditioning
@@ -160,6 +160,18 @@ class TorqueSearch:
         values, conds, viol, ratios = self.score(cands, limit_stride=self._LIMIT_STRIDE, bound=self.bound)
         ok = viol == 0
         if not ok.any():
+            still = self.score([shapes[0].scaled(0.0)], limit_stride=self._LIMIT_STRIDE, bound=self.bound)
+            falls = max(still[3][0].get("q", 0.0), still[3][0].get("clearance", 0.0)) > self.bound
+            if falls:  # with no torque at all it leaves its range (or hits itself): no speed bound is to blame
+                passive = [self.plant.joint_names[j] for j in np.flatnonzero(~np.asarray(self.plant.actuated))]
+                left = "joint range" if still[3][0].get("q", 0.0) > self.bound else "clearance"
+                raise InfeasibleExcitationError(
+                    f"with a joint no actuator drives ({', '.join(passive)}) the arm is excited "
+                    "by open-loop torque, not tracked, and no drive torque kept the motion within the limits; with "
+                    f"none at all it leaves its {left} "
+                    "from its start pose: it does not hold itself up; give every joint an actuator so that the arm is "
+                    "tracked, or a start pose in which it hangs at rest"
+                )
             worst = ratios[int(np.argmin(viol))]
             scaled = "scaled to the limits" if self.fill else f"down to {fractions[-1]:.3g} x the torque bound"
             uses = {k: round(v, 3) for k, v in worst.items()}
@@ -205,7 +217,19 @@ class TorqueSearch:
         best = self._verified(best)
         if progress is not None:
             progress(1.0, f"{generations} generations, best {best_value:.4g}")
-        return best, start_conds, [float(self.score([best], limit_stride=1, bound=1.0)[1][0])]
+        _, conds, _, ratios = self.score([best], limit_stride=1, bound=1.0)
+        if not np.isfinite(best_value) or not np.isfinite(conds[0]):
+            # every design the limits allow moves the arm too little to excite the base parameters; a run on such
+            # data fitted noise and exited 0 (a hanging chain with a passive middle joint: XX2 = 2e10 +- 4e10, a
+            # validation torque RMS of 4e5 N m against 0.1 N m of noise)
+            raise self.limits.infeasible(
+                "no open-loop drive torque within the limits moves the arm enough to excite every base parameter "
+                "(cond(X'X) is infinite for every design tried: scaled down to meet the limits, the torque leaves "
+                "the arm nearly still)",
+                ratios[0],
+                "; drive every joint by an actuator so that it is tracked (not driven open loop), or widen the bound",
+            )
+        return best, start_conds, [float(conds[0])]
 
     def _verified(self, design: FourierDesign) -> FourierDesign:
         """The design, shrunk where needed until every bound holds on every physics step."""

@@ -109,12 +109,17 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
     stops = data.meta.get("limits", [])
     if stops:
         s = stops[0]
+        tracking = ""
+        if not torque_driven and s["joint"] in data.joint_names:  # how far the tracked joint left its design
+            j = data.joint_names.index(s["joint"])
+            error = float(np.max(np.abs(data.meta["q_true"][:, j] - design.evaluate(data.time)[0][:, j])))
+            tracking = f", its tracking error up to {error:.3g} {'rad' if s['unit'] == 'N m' else 'm'}"
         raise ModelError(
             f"the simulated motion presses joint {s['joint']!r} against its range limit {seen(s)}, up to "
-            f"{s['max_force']:.3g} {s['unit']}; {len(stops)} joint(s) in all): the limit's force enters the torque "
-            "and no model has it; keep the motion "
-            "further inside the range (a larger system.limits.range_margin, or a faster controller where the "
-            "tracking error reaches the stop) or widen the range (and any limit margin)"
+            f"{s['max_force']:.3g} {s['unit']}{tracking}; {len(stops)} joint(s) in all): the limit's force enters the "
+            "torque and no model has it; keep the motion further inside the range (a larger "
+            "system.limits.range_margin, or, where the tracking error reaches the stop, a faster tracking loop: a "
+            "larger system.controller.bandwidth_hz) or widen the range (and any limit margin)"
         )
     assert data.ddq is not None  # a simulated dataset has the simulator's accelerations
     rows = data.time >= data.time[0] + min(SETTLE_S, 0.5 * float(data.time[-1] - data.time[0]))

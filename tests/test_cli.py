@@ -261,6 +261,48 @@ def test_failed_run_leaves_no_results(tmp_path: Path) -> None:
     assert not (tmp_path / "results.json").exists()
 
 
+def test_an_open_loop_design_that_leaves_the_arm_still_is_refused_not_fitted(tmp_path: Path) -> None:
+    """A hanging chain whose middle joint has no actuator, driven open loop: every torque the limits allow was
+    scaled down until the arm barely moved (|q| < 7e-5 rad), the search reported cond inf, and the run fitted
+    noise and exited 0 (XX2 = 2e10 +- 4e10, validation RMS 4e5 N m against 0.1 N m of noise). Refused now."""
+    model = tmp_path / "passive_middle.xml"
+    model.write_text(
+        '<mujoco model="passive_middle"><compiler angle="radian"/><worldbody><body name="l1" pos="0 0 0.6">'
+        '<joint name="j1" axis="0 0 1" range="-2 2"/><geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>'
+        '<body name="l2" pos="0.3 0 0"><joint name="j2" axis="0 1 0" range="-2 2" damping="0.05"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -0.25" size="0.025"/><body name="l3" pos="0 0 -0.25">'
+        '<joint name="j3" axis="0 1 0" range="-2 2"/><geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.02"/>'
+        '</body></body></body></worldbody><actuator><motor joint="j1" ctrlrange="-20 20"/>'
+        '<motor joint="j3" ctrlrange="-10 10"/></actuator></mujoco>'
+    )
+    out = tmp_path / "run"
+    with pytest.raises(InfeasibleExcitationError, match=r"moves the arm enough to excite .*cond\(X'X\) is infinite"):
+        run(compose_config(["record=none", "system=auto", f"system.mjcf={model}"]), output_dir=out)
+    assert not (out / "results.json").exists()
+
+
+def test_an_arm_that_falls_with_a_passive_joint_is_told_why_not_to_relax_a_bound(tmp_path: Path) -> None:
+    """The same chain held out horizontally: with no torque at all it falls from its start pose. The refusal said
+    "binding constraint ddq ...; relax system.limits.acceleration, or lower system.base_freq_hz", which no value
+    of either cured (acceleration 40, base_freq_hz 0.02 were tried). It now says the arm does not hold itself up
+    and names the joint no actuator drives."""
+    model = tmp_path / "passive_out.xml"
+    model.write_text(
+        '<mujoco model="passive_out"><compiler angle="radian"/><worldbody><body name="l1" pos="0 0 0.6">'
+        '<joint name="j1" axis="0 0 1" range="-2 2"/><geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>'
+        '<body name="l2" pos="0.3 0 0"><joint name="j2" axis="0 1 0" range="-2 2" damping="0.05"/>'
+        '<geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.025"/><body name="l3" pos="0.25 0 0">'
+        '<joint name="j3" axis="0 1 0" range="-2 2"/><geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02"/>'
+        '</body></body></body></worldbody><actuator><motor joint="j1" ctrlrange="-20 20"/>'
+        '<motor joint="j3" ctrlrange="-10 10"/></actuator></mujoco>'
+    )
+    with pytest.raises(
+        InfeasibleExcitationError, match=r"no actuator drives \(j2\) .*it does not hold itself up"
+    ) as err:
+        run(compose_config(["record=none", "system=auto", f"system.mjcf={model}"]), output_dir=tmp_path / "run")
+    assert err.value.bound is None and "relax" not in str(err.value)
+
+
 def test_an_open_loop_design_no_torque_can_keep_names_its_bound_and_setting(tmp_path: Path) -> None:
     # the wheel pendulum's unactuated joint may not move faster than 0.01 rad/s: the torque search fails, and
     # says which bound and which key set it (it used to say "down to 1 x the torque bound" after filling)

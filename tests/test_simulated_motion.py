@@ -168,8 +168,11 @@ def test_a_motion_that_presses_a_joint_against_its_range_limit_is_refused_by_nam
     data = _track(plant, reference)
     stop = data.meta["limits"][0]
     assert stop["joint"] == "j0" and stop["samples"] > 100 and stop["max_force"] > 0.1
-    with pytest.raises(ModelError, match=r"presses joint 'j0' against its range limit in \d+ of 1000 samples"):
+    with pytest.raises(ModelError, match=r"presses joint 'j0' against its range limit in \d+ of 1000 samples") as err:
         simulated_motion(reference, limits, data, torque_driven=False)  # type: ignore[arg-type]
+    # the key that makes the loop faster is named (a user who guessed controller.bandwidth_hz got "Key 'controller'
+    # is not in struct"), with how far the joint left its design
+    assert "its tracking error up to " in str(err.value) and "larger system.controller.bandwidth_hz" in str(err.value)
     free = _track(plant, _Swing(0.3))  # inside the margin's free range: no limit force
     assert free.meta["limits"] == []
     simulated_motion(_Swing(0.3), limits, free, torque_driven=False)  # type: ignore[arg-type]
