@@ -428,13 +428,16 @@ def _interval(
 
 
 def _pressing(d: mujoco.MjData, k: int, touching: dict[tuple[int, int], list[int]]) -> None:
-    """Count sample k for each geom pair of d's contacts that carries a normal force (d after a forward pass)."""
-    for c in d.contact[: d.ncon]:
-        if c.efc_address < 0 or d.efc_force[c.efc_address] == 0.0:
-            continue
-        pair = (int(min(c.geom1, c.geom2)), int(max(c.geom1, c.geom2)))
-        seen = touching.setdefault(pair, [0, k])
-        seen[0] += 1
+    """Count sample k for each geom pair of d's contacts that carries a normal force (d after a forward pass), once
+    however many contact points the pair has (two capsules overlapping along their length have several: a pair was
+    reported pressing in 15003 of 15000 samples)."""
+    pairs = {
+        (int(min(c.geom1, c.geom2)), int(max(c.geom1, c.geom2)))
+        for c in d.contact[: d.ncon]
+        if c.efc_address >= 0 and d.efc_force[c.efc_address] != 0.0
+    }
+    for pair in pairs:
+        touching.setdefault(pair, [0, k])[0] += 1
 
 
 def _at_limit(d: mujoco.MjData, k: int, out: np.ndarray) -> None:

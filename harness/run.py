@@ -98,13 +98,20 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
     contacts = data.meta.get("contacts", [])
     if contacts:
         c = contacts[0]
+        always = c["samples"] == data.n_samples  # from the start pose on: they overlap wherever the arm goes
+        apart = (
+            "they touch in every sample, so they overlap in the model itself (a body between them, such as a "
+            "gimbal without geoms, keeps MuJoCo from leaving out the pair of a parent and its child): no clearance "
+            'keeps them apart; take them out of collision (contype="0" conaffinity="0", or an <exclude> of the '
+            "two bodies)"
+            if always
+            else "keep them apart (a larger system.limits.clearance_m, which covers the floor plane and the collision "
+            "geoms fixed to the world; a link without collision geoms only of the floor and the other links) or "
+            'take them out of collision (contype="0" conaffinity="0")'
+        )
         raise ModelError(
             f"the simulated motion presses geom {c['geoms'][0]} against {c['geoms'][1]} {seen(c)}; "
-            f"{len(contacts)} pair(s) in all): "
-            "contact forces enter the torque and no model has them; keep them apart (a larger "
-            "system.limits.clearance_m, which covers the floor plane and the collision geoms fixed to the world; "
-            "a link without collision geoms only of the floor and the other links) or take "
-            'them out of collision (contype="0" conaffinity="0")'
+            f"{len(contacts)} pair(s) in all): contact forces enter the torque and no model has them; {apart}"
         )
     stops = data.meta.get("limits", [])
     if stops:
