@@ -34,7 +34,7 @@ import warnings
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from decimal import ROUND_FLOOR, Decimal, InvalidOperation
 from functools import partial
 from pathlib import Path
@@ -561,6 +561,12 @@ def _read_body(
     usecols = sorted({c.index for c in sources.values()})
     position = {index: k for k, index in enumerate(usecols)}  # a file column's place in the table read
     origin = _time_origin(file, delimiter, sources["time"].index)
+    shift = float(origin) * sources["time"].scale  # [s] what the time read is relative to
+    if origin and abs(sources["time"].offset + shift) < TIME_ORIGIN_S:
+        # a mapped offset that already takes the origin out (offset -1.7e9): ours = scale * file + offset holds,
+        # as scale * (file - origin) + (offset + scale * origin), the large terms cancelling exactly
+        sources = {**sources, "time": replace(sources["time"], offset=sources["time"].offset + shift)}
+        shift = 0.0
     # a time far from 0 (Unix time, 1.7e9 s) read as a double keeps 2.4e-7 s of it: read relative to its origin
     converters: dict[int | str, Callable[[str], float]] | None = (
         {sources["time"].index: partial(_relative, origin)} if origin else None
@@ -607,7 +613,7 @@ def _read_body(
     arrays.update({k: None if v is None else v[:n] for k, v in arrays.items()})
     values = {name: target(name) for name in sources}
     del arrays["time"]  # in `values`; the rest are the dataset's blocks
-    return arrays, values, n, float(origin) * sources["time"].scale
+    return arrays, values, n, shift
 
 
 TIME_ORIGIN_S = 1e6  # [s] a first time stamp this far from 0 is read relative to its whole part (`_time_origin`)

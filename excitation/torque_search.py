@@ -165,12 +165,18 @@ class TorqueSearch:
             if falls:  # with no torque at all it leaves its range (or hits itself): no speed bound is to blame
                 passive = [self.plant.joint_names[j] for j in np.flatnonzero(~np.asarray(self.plant.actuated))]
                 left = "joint range" if still[3][0].get("q", 0.0) > self.bound else "clearance"
+                why, cure = (
+                    (f"with a joint no actuator drives ({', '.join(passive)}) the arm", "give every joint an actuator")
+                    if passive  # else every joint has one, and the arm was asked to be driven open loop
+                    else (
+                        "driven by torque (system.torque_driven=true), the arm",
+                        "set system.torque_driven=false",
+                    )
+                )
                 raise InfeasibleExcitationError(
-                    f"with a joint no actuator drives ({', '.join(passive)}) the arm is excited "
-                    "by open-loop torque, not tracked, and no drive torque kept the motion within the limits; with "
-                    f"none at all it leaves its {left} "
-                    "from its start pose: it does not hold itself up; give every joint an actuator so that the arm is "
-                    "tracked, or a start pose in which it hangs at rest"
+                    f"{why} is excited by open-loop torque, not tracked, and no drive torque kept the motion within "
+                    f"the limits; with none at all it leaves its {left} from its start pose: it does not hold itself "
+                    f"up; {cure} so that the arm is tracked, or give a start pose in which it hangs at rest"
                 )
             worst = ratios[int(np.argmin(viol))]
             scaled = "scaled to the limits" if self.fill else f"down to {fractions[-1]:.3g} x the torque bound"

@@ -156,7 +156,8 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
             )
         top = differences_cutoff_limit_hz(2 * nyquist)
         differences = cfg.diagnose.get("derivatives", "butterworth") == "butterworth"
-        if name.endswith("cutoff_hz") and differences and value is not None and float(value) > top * 1.02:
+        # the data config's cut-off knows nothing of the files' rate: capped, with a note (`_capped_cutoff`)
+        if name == "diagnose.cutoff_hz" and differences and value is not None and float(value) > top * 1.02:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is above {top:g} Hz, an eighth of the {2 * nyquist:g} Hz sampling of "
                 f"{slowest.source}: the differences that make the accelerations lose a fifth of them there and more "
@@ -181,6 +182,23 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
             f"diagnose.window_s={window:g} s is longer than {shortest.source} ({span:.4g} s): the simulation "
             "error re-starts the simulation every window of each validation file; shorten it"
         )
+
+
+def _capped_cutoff(cfg: DictConfig, options: dict[str, float], datasets: list[Dataset]) -> tuple[dict[str, float], str]:
+    """`options` with a state cut-off from the data config (`data.cutoff_hz`, conf/data/csv.yaml's 10 Hz on a log
+    of any rate) lowered to an eighth of the slowest file's rate where it is above it, and the note that says so
+    ("" where it is not); `diagnose.cutoff_hz`, set for these files, is refused there instead (`_check_filters`)."""
+    name, value = state_cutoff(cfg)
+    fs = 1.0 / max(d.dt for d in datasets)
+    top = differences_cutoff_limit_hz(fs)
+    differences = cfg.diagnose.get("derivatives", "butterworth") == "butterworth"
+    if name == "diagnose.cutoff_hz" or value is None or not differences or float(value) <= top * 1.02:
+        return options, ""
+    note = (
+        f"{name}={float(value):g} Hz is above {top:g} Hz, an eighth of the slowest file's {fs:g} Hz sampling, where "
+        f"the differences that make the accelerations lose a fifth of them: the states are filtered at {top:g} Hz"
+    )
+    return {**options, "cutoff_hz": top}, note
 
 
 MIN_WINDOW_SAMPLES = 5  # the shortest re-start window of the simulation error, in samples of the slowest file
@@ -309,7 +327,9 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder, paths: list[Path] | N
             stage(f"repaired {Path(d.source).name}: {r.message}")
     ignored = {d.source: [str(c) for c in d.meta.get("ignored_columns", ())] for d in datasets}
     derivatives = str(opts.derivatives)
-    options = derivative_options(cfg)
+    options, capped = _capped_cutoff(cfg, derivative_options(cfg), datasets)
+    if capped:
+        stage(capped)
     # at the full rate: thinning would blur a stuck or clipped torque
     anomalies = find_anomalies(datasets, plant.hinge, plant.q_range, plant.limit_margin)
     validation = cfg.data.get("validation")
@@ -372,6 +392,8 @@ def _run(cfg: DictConfig, plant: Plant, folder: RunFolder, paths: list[Path] | N
         stage(f"fitting the same diagnosis on every record ({sum(d.n_samples for d in datasets)} rows)")
         final = run_diagnosis(datasets, check_torque_signs=False)  # the same records the first fit checked
         payload["final_fit"] = _final_fit_entry(final, final_name, datasets)
+    if capped:
+        payload["notes"] = [*payload.get("notes", []), capped]
     payload["seed"] = int(cfg.seed)
     payload["units"] = _units(plant)
     payload["split"] = split.describe()

@@ -183,18 +183,23 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     assert not any(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("key", ["diagnose.cutoff_hz", "data.cutoff_hz"])
-def test_a_state_cut_off_above_an_eighth_of_the_files_rate_is_refused(
-    csv_files: list[Path], tmp_path: Path, key: str
+def test_a_state_cut_off_above_an_eighth_of_the_files_rate_is_refused_or_capped(
+    csv_files: list[Path], tmp_path: Path
 ) -> None:
     """Below the Nyquist frequency, but above 62.5 Hz at 500 Hz the differences lose a fifth of the acceleration
     and more: clean two-link data from sysid-run at 120 Hz were named a rigid-body change and an elbow damping (the
-    torques compared below 120 Hz), where 60 Hz names nothing. Refused by its key once the files' rate is known;
-    nothing is written."""
-    with pytest.raises(ConfigError, match=rf"{key}=100 Hz is above 62\.5 Hz, an eighth of the 500 Hz sampling of "):
-        cli.run(_config(csv_files, tmp_path, f"{key}=100"))
+    torques compared below 120 Hz), where 60 Hz names nothing. `diagnose.cutoff_hz`, set for these files, is refused
+    by its key once their rate is known, and nothing is written; the data config's `cutoff_hz` (conf/data/csv.yaml's
+    10 Hz knows nothing of a file's rate: a 50 Hz log would be refused by default) is lowered to the limit, and a
+    note says so."""
+    with pytest.raises(ConfigError, match=r"diagnose\.cutoff_hz=100 Hz is above 62\.5 Hz, an eighth of the 500 Hz "):
+        cli.run(_config(csv_files, tmp_path, "diagnose.cutoff_hz=100"))
     assert not any(tmp_path.iterdir())
-    cli.run(_config(csv_files, tmp_path, f"{key}=62.5", "diagnose.recording=false", "diagnose.final_fit=false"))
+    quick = ("diagnose.recording=false", "diagnose.final_fit=false")
+    cli.run(_config(csv_files, tmp_path / "at", "diagnose.cutoff_hz=62.5", *quick))
+    capped = cli.run(_config(csv_files, tmp_path / "capped", "data.cutoff_hz=100", *quick))
+    assert [r["cutoff_hz"] for r in capped["info"]["derivatives"]["cutoff_by_record"]] == pytest.approx([62.5, 62.5])
+    assert any(n.startswith("data.cutoff_hz=100 Hz is above 62.5 Hz") for n in capped["notes"]), capped["notes"]
 
 
 def test_the_state_filter_is_the_data_configs_unless_diagnose_sets_one(csv_files: list[Path], tmp_path: Path) -> None:

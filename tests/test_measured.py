@@ -322,6 +322,22 @@ def test_unix_time_stamps_are_read_to_the_microseconds_they_were_written_with(
         read_measured(unix, plant)
 
 
+def test_a_unix_time_mapped_with_an_offset_that_takes_the_origin_out_reads_as_mapped(
+    tmp_path: Path, plant: Plant
+) -> None:
+    """ours = scale * file + offset: a user who made Unix time relative with offset -1.7e9 got -1.7e9 s once the
+    reader took the origin out itself (review of the change above); the two now cancel, exactly."""
+    cols = table()
+    lines = write(tmp_path / "zero.csv", {**cols, "time": np.round(cols["time"], 6)}).read_text().splitlines()
+    stamps = [str(Decimal("1700000000.25") + Decimal(line.split(",")[0])) for line in lines[1:]]
+    body = [",".join([stamp, *line.split(",")[1:]]) for stamp, line in zip(stamps, lines[1:], strict=True)]
+    path = tmp_path / "unix.csv"
+    path.write_text("\n".join([lines[0], *body]) + "\n")
+    data = read_measured(path, plant, columns={"time": {"column": "time", "offset": -1_700_000_000.0}})
+    assert data.time[0] == 0.25 and data.meta["time_origin_s"] == 0.0
+    assert np.max(np.abs(np.diff(data.time) - 0.002)) < 1e-12
+
+
 def test_duplicate_time_is_refused(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     cols["time"][300] = cols["time"][299]

@@ -562,6 +562,10 @@ def test_harmonics_are_bounded_by_the_sampling() -> None:
             r"identify\.cutoff_hz=100 Hz is above 62\.5 Hz, an eighth of system\.sensor\.sample_rate_hz=500: ",
         ),
         (
+            ["system=pendulum", "estimator=iv", "estimator.options.reference_cutoff_hz=100"],
+            r"estimator\.options\.reference_cutoff_hz=100 Hz is above 62\.5 Hz, an eighth of ",
+        ),
+        (
             [f"system.mjcf={REPO / 'mjcf' / 'two_link.xml'}", "system.limits.clearance_m=-1"],
             r"system\.limits\.clearance_m must be >= 0, got -1",
         ),
