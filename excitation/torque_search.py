@@ -161,10 +161,10 @@ class TorqueSearch:
         ok = viol == 0
         if not ok.any():
             still = self.score([shapes[0].scaled(0.0)], limit_stride=self._LIMIT_STRIDE, bound=self.bound)
-            falls = max(still[3][0].get("q", 0.0), still[3][0].get("clearance", 0.0)) > self.bound
+            falls = max(still[3][0].get("q", 0.0), still[3][0].get("clearance", 0.0)) > 1.0  # past the bound itself
             if falls:  # with no torque at all it leaves its range (or hits itself): no speed bound is to blame
                 passive = [self.plant.joint_names[j] for j in np.flatnonzero(~np.asarray(self.plant.actuated))]
-                left = "joint range" if still[3][0].get("q", 0.0) > self.bound else "clearance"
+                left = "joint range" if still[3][0].get("q", 0.0) > 1.0 else "clearance"
                 why, cure = (
                     (f"with a joint no actuator drives ({', '.join(passive)}) the arm", "give every joint an actuator")
                     if passive  # else every joint has one, and the arm was asked to be driven open loop
@@ -224,7 +224,7 @@ class TorqueSearch:
         if progress is not None:
             progress(1.0, f"{generations} generations, best {best_value:.4g}")
         _, conds, _, ratios = self.score([best], limit_stride=1, bound=1.0)
-        if not np.isfinite(best_value) or not np.isfinite(conds[0]):
+        if not np.isfinite(best_value):  # the criterion the search minimised (raw cond(X'X) depends on units)
             # every design the limits allow moves the arm too little to excite the base parameters; a run on such
             # data fitted noise and exited 0 (a hanging chain with a passive middle joint: XX2 = 2e10 +- 4e10, a
             # validation torque RMS of 4e5 N m against 0.1 N m of noise)

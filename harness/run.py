@@ -100,10 +100,10 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
         c = contacts[0]
         always = c["samples"] == data.n_samples  # from the start pose on: they overlap wherever the arm goes
         apart = (
-            "they touch in every sample, so they overlap in the model itself (a body between them, such as a "
-            "gimbal without geoms, keeps MuJoCo from leaving out the pair of a parent and its child): no clearance "
-            'keeps them apart; take them out of collision (contype="0" conaffinity="0", or an <exclude> of the '
-            "two bodies)"
+            "they touch in every sample, from the start pose on, wherever the arm goes (geoms that overlap in the "
+            "model itself: a body between them, such as a gimbal without geoms, keeps MuJoCo from leaving out the "
+            "pair of a parent and its child; or a link resting on the floor): no clearance keeps them apart; take "
+            'them out of collision (contype="0" conaffinity="0", or an <exclude> of the two bodies)'
             if always
             else "keep them apart (a larger system.limits.clearance_m, which covers the floor plane and the collision "
             "geoms fixed to the world; a link without collision geoms only of the floor and the other links) or "
@@ -126,7 +126,8 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
             f"{s['max_force']:.3g} {s['unit']}{tracking}; {len(stops)} joint(s) in all): the limit's force enters the "
             "torque and no model has it; keep the motion further inside the range (a larger "
             "system.limits.range_margin, or, where the tracking error reaches the stop, a faster tracking loop: a "
-            "larger system.controller.bandwidth_hz) or widen the range (and any limit margin)"
+            "larger system.controller.bandwidth_hz for a motor, a stiffer kp for a position servo, which tracks "
+            "with its own gains) or widen the range (and any limit margin)"
         )
     assert data.ddq is not None  # a simulated dataset has the simulator's accelerations
     rows = data.time >= data.time[0] + min(SETTLE_S, 0.5 * float(data.time[-1] - data.time[0]))
