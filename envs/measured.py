@@ -754,11 +754,22 @@ def _resolve_columns(
         ddq = {f"ddq_{n}" for n in plant.joint_names}
         stray = [h for h in ignored if h not in ddq and h.startswith(_FORMAT_PREFIXES)]
         if stray:
+            passive = {
+                f"{p}{n}"
+                for p in ("tau_", "tau_cmd_")
+                for j, n in enumerate(plant.joint_names)
+                if not plant.actuated[j]
+            }
+            why = (
+                "a torque of a joint no actuator drives in this model: data of another build, or a column to leave "
+                "out (a data.columns mapping reads only the columns it names)"
+                if set(stray) <= passive
+                else "a typo, or data of another system?"
+            )
             raise DataError(
                 f"{src}: unknown column(s) {', '.join(stray)}: {plant.name} has the joints "
                 f"{', '.join(plant.joint_names)} (actuated: "
-                f"{', '.join(n for j, n in enumerate(plant.joint_names) if plant.actuated[j]) or 'none'}); "
-                f"a typo, or data of another system?"
+                f"{', '.join(n for j, n in enumerate(plant.joint_names) if plant.actuated[j]) or 'none'}); {why}"
             )
     return out, ignored
 

@@ -120,8 +120,13 @@ def test_unactuated_joint_needs_no_torque_column(tmp_path: Path) -> None:
     assert np.all(data.tau[:, 0] == 0) and list(data.actuated) == [False, True]
     cols = {"time": t, "q_pendulum": q[:, 0], "q_wheel": q[:, 1], "tau_pendulum": t, "tau_wheel": t}
     write(tmp_path / "torque.csv", cols)
-    with pytest.raises(DataError, match=r"unknown column\(s\) tau_pendulum: .*\(actuated: wheel\)"):
+    with pytest.raises(
+        DataError, match=r"unknown column\(s\) tau_pendulum: .*\(actuated: wheel\); a torque of a joint no"
+    ):
         read_measured(tmp_path / "torque.csv", wheel)
+    # mapped, the columns named are read and the rest ignored, as the message says
+    mapped = read_measured(tmp_path / "torque.csv", wheel, columns={"tau_wheel": "tau_wheel"})
+    assert "tau_pendulum" in mapped.meta["ignored_columns"] and np.all(mapped.tau[:, 0] == 0)
 
 
 def test_missing_column_is_named(tmp_path: Path, plant: Plant) -> None:
