@@ -307,12 +307,17 @@ def _tendons(m: mujoco.MjModel) -> str:
     return f"tendon{'s' if len(out) > 1 else ''} {', '.join(out)}"
 
 
+def _springs_and_dampers_on(m: mujoco.MjModel) -> tuple[bool, bool]:
+    """Whether MuJoCo applies joint springs and dampers: an <option><flag> may disable either."""
+    off = int(m.opt.disableflags)
+    return not off & int(mujoco.mjtDisableBit.mjDSBL_SPRING), not off & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+
+
 def _check_polynomials(path: Path, m: mujoco.MjModel) -> None:
     """Refuse MuJoCo 4's higher-order joint damping and stiffness (`damping="b0 b1 b2"`: b0 v + b1 v|v| + b2 v^3;
     `stiffness="k0 k1 k2"`: k0 x + k1 x^2 + k2 x^3 about springref; an actuator's `damping` likewise): the harness
     models both as linear, so it would identify and report a model MuJoCo does not simulate. Named with the fix."""
-    spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
-    damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+    spring_on, damper_on = _springs_and_dampers_on(m)
     for j in range(m.njnt):
         name = _name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
         dof = int(m.jnt_dofadr[j])
@@ -374,7 +379,7 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         raise ModelError(f"{path}: gravity compensation (gravcomp) on bodies {bodies} is not supported")
     if m.opt.density != 0 or m.opt.viscosity != 0:
         raise ModelError(f"{path}: fluid forces (option density/viscosity) are not supported")
-    spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
+    spring_on = _springs_and_dampers_on(m)[0]
     plastic = [_name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt) if m.jnt_springyield[j] > 0]
     if plastic and spring_on:  # the spring's rest position follows the joint's history: no fixed springref
         raise ModelError(
@@ -533,8 +538,7 @@ def plant_from_model(path: Path, m: mujoco.MjModel, *, check: bool = True) -> Pl
     gear = actuation.gear()
     q_range = np.where(m.jnt_limited[:, None].astype(bool), m.jnt_range, [-np.inf, np.inf])
     # a disabled spring, damper or dry friction (an <option><flag>) is absent from MuJoCo's dynamics, so from ours
-    spring_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_SPRING)
-    damper_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+    spring_on, damper_on = _springs_and_dampers_on(m)
     friction_on = friction_enabled(m)
     theta = np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])
     friction_speed, friction_lead = friction_parameters(m)

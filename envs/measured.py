@@ -1179,13 +1179,21 @@ def _cut(arrays: dict[str, np.ndarray | None], start: int, stop: int) -> dict[st
     return {k: None if a is None else a[start:stop] for k, a in arrays.items()}
 
 
-def _check_max_speed(x: np.ndarray, dt: np.ndarray, max_speed: float, noise: float, *, label: str, src: str) -> None:
-    """Refuse a `max_speed` the angle's own sustained rate exceeds (its rate after a running median over
-    `_RATE_WINDOW` steps, which glitches cannot move, at its 99th percentile, less what its noise adds): the
-    fastest the joint can move cannot be slower than it moves."""
-    if len(x) < 2:
+def _running_rate(steps: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """An angle's rate |step| / dt after a running median over `_RATE_WINDOW` steps: a glitch of up to
+    `_GLITCH_MAX_RUN` samples moves two steps of a window, which cannot move its median."""
+    return median_filter(np.abs(steps) / dt, size=min(_RATE_WINDOW, len(steps)), mode="nearest")  # type: ignore[no-any-return]
+
+
+def _check_max_speed(
+    steps: np.ndarray, dt: np.ndarray, max_speed: float, noise: float, *, label: str, src: str
+) -> None:
+    """Refuse a `max_speed` the angle's own sustained rate exceeds (`_running_rate`, which glitches cannot move,
+    at its 99th percentile, less what its noise adds): the fastest the joint can move cannot be slower than it
+    moves. `steps`, `dt`: (N - 1,) the angle's steps and their intervals."""
+    if not len(steps):
         return
-    rate = median_filter(np.abs(np.diff(x)) / dt, size=min(_RATE_WINDOW, len(x) - 1), mode="nearest")
+    rate = _running_rate(steps, dt)
     sustained = float(np.percentile(rate, 99.0)) - 3.0 * np.sqrt(2.0) * noise / float(np.median(dt))
     if sustained > 1.05 * max_speed:
         raise DataError(
@@ -1221,11 +1229,9 @@ def _repair_joint(
     elif v is not None:
         speed = 3.0 * float(np.percentile(np.abs(v), 99.9, overwrite_input=True))
     else:
-        # the angle's own rate after a running median over _RATE_WINDOW steps: a glitch of up to
-        # _GLITCH_MAX_RUN samples moves two steps of a window, which cannot move its median, so the glitches
-        # cannot set the bound that finds them (a percentile of the raw steps could: 1 % of glitch rows is 2 %
-        # of the steps, and the 99th percentile was then a glitch's)
-        rate = median_filter(np.abs(s) / dt_eff, size=min(_RATE_WINDOW, len(s)), mode="nearest")
+        # the angle's own running rate, so the glitches cannot set the bound that finds them (a percentile of the
+        # raw steps could: 1 % of glitch rows is 2 % of the steps, and the 99th percentile was then a glitch's)
+        rate = _running_rate(s, dt_eff)
         speed = 3.0 * float(np.percentile(rate, 99.9, overwrite_input=True))
         del rate
     noise = 0.0
@@ -1236,7 +1242,7 @@ def _repair_joint(
         del d2
     floor = max(_MIN_JUMP, 10.0 * noise)
     if max_speed is not None:
-        _check_max_speed(x, dt_eff, float(max_speed), noise, label=label, src=src)
+        _check_max_speed(s, dt_eff, float(max_speed), noise, label=label, src=src)
     bound = np.multiply(dt_eff, speed, out=dt_eff)
     bound += floor
     flagged = np.flatnonzero(np.abs(s) > bound)

@@ -160,11 +160,12 @@ class TorqueSearch:
         values, conds, viol, ratios = self.score(cands, limit_stride=self._LIMIT_STRIDE, bound=self.bound)
         ok = viol == 0
         if not ok.any():
-            still = self.score([shapes[0].scaled(0.0)], limit_stride=self._LIMIT_STRIDE, bound=self.bound)
-            falls = max(still[3][0].get("q", 0.0), still[3][0].get("clearance", 0.0)) > 1.0  # past the bound itself
-            if falls:  # with no torque at all it leaves its range (or hits itself): no speed bound is to blame
+            still = self.score([shapes[0].scaled(0.0)], limit_stride=self._LIMIT_STRIDE, bound=self.bound)[3][0]
+            # with no torque at all it leaves its range (or hits itself), past the bound itself: no speed bound is to
+            # blame
+            if max(still.get("q", 0.0), still.get("clearance", 0.0)) > 1.0:
                 passive = [self.plant.joint_names[j] for j in np.flatnonzero(~np.asarray(self.plant.actuated))]
-                left = "joint range" if still[3][0].get("q", 0.0) > 1.0 else "clearance"
+                left = "joint range" if still.get("q", 0.0) > 1.0 else "clearance"
                 why, cure = (
                     (f"with a joint no actuator drives ({', '.join(passive)}) the arm", "give every joint an actuator")
                     if passive  # else every joint has one, and the arm was asked to be driven open loop

@@ -42,6 +42,7 @@ from harness.validate import ConfigError, check_command_line, flag_set_by, valid
 from identify.derivatives import (
     derive_states,
     differences_cutoff_limit_hz,
+    differences_cutoff_problem,
     excitation_bandwidth_hz,
     reduce_record,
     reduction_factor,
@@ -140,9 +141,9 @@ def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
 
 def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or below
-    `MIN_FILTER_CYCLES` cycles over the shortest one, a state cut-off above an eighth of its rate where the states
-    are differences (`differences_cutoff_limit_hz`), or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
-    samples or longer than the shortest file (known once read)."""
+    `MIN_FILTER_CYCLES` cycles over the shortest one, or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
+    samples or longer than the shortest file (known once read). The state cut-off against the differences' limit:
+    `_capped_cutoff`."""
     slowest = max(datasets, key=lambda d: d.dt)
     shortest = min(datasets, key=lambda d: float(d.time[-1] - d.time[0]))
     span = float(shortest.time[-1] - shortest.time[0])
@@ -153,15 +154,6 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
             raise ConfigError(
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
                 f"{slowest.source} (sampled at {2 * nyquist:g} Hz)"
-            )
-        top = differences_cutoff_limit_hz(2 * nyquist)
-        differences = cfg.diagnose.get("derivatives", "butterworth") == "butterworth"
-        # the data config's cut-off knows nothing of the files' rate: capped, with a note (`_capped_cutoff`)
-        if name == "diagnose.cutoff_hz" and differences and value is not None and float(value) > top * 1.02:
-            raise ConfigError(
-                f"{name}={float(value):g} Hz is above {top:g} Hz, an eighth of the {2 * nyquist:g} Hz sampling of "
-                f"{slowest.source}: the differences that make the accelerations lose a fifth of them there and more "
-                "above (on clean data the diagnosis then names effects that are not there); lower it"
             )
         if value is not None and float(value) < lowest:
             raise ConfigError(
@@ -185,20 +177,22 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
 
 
 def _capped_cutoff(cfg: DictConfig, options: dict[str, float], datasets: list[Dataset]) -> tuple[dict[str, float], str]:
-    """`options` with a state cut-off from the data config (`data.cutoff_hz`, conf/data/csv.yaml's 10 Hz on a log
-    of any rate) lowered to an eighth of the slowest file's rate where it is above it, and the note that says so
-    ("" where it is not); `diagnose.cutoff_hz`, set for these files, is refused there instead (`_check_filters`)."""
+    """`options` against the differences' limit of the slowest file (`differences_cutoff_problem`, where the states
+    are differences): `diagnose.cutoff_hz`, set for these files, is refused above it (on clean data the diagnosis
+    then names effects that are not there); the data config's (`data.cutoff_hz`, conf/data/csv.yaml's 10 Hz on a
+    log of any rate) is lowered to it, with the note that says so ("" where nothing is)."""
     name, value = state_cutoff(cfg)
-    fs = 1.0 / max(d.dt for d in datasets)
-    top = differences_cutoff_limit_hz(fs)
-    differences = cfg.diagnose.get("derivatives", "butterworth") == "butterworth"
-    if name == "diagnose.cutoff_hz" or value is None or not differences or float(value) <= top * 1.02:
+    slowest = max(datasets, key=lambda d: d.dt)
+    fs = 1.0 / slowest.dt
+    if value is None or cfg.diagnose.get("derivatives", "butterworth") != "butterworth":
         return options, ""
-    note = (
-        f"{name}={float(value):g} Hz is above {top:g} Hz, an eighth of the slowest file's {fs:g} Hz sampling, where "
-        f"the differences that make the accelerations lose a fifth of them: the states are filtered at {top:g} Hz"
-    )
-    return {**options, "cutoff_hz": top}, note
+    problem = differences_cutoff_problem(float(value), fs, f"the {fs:g} Hz sampling of {slowest.source}")
+    if problem is None:
+        return options, ""
+    if name == "diagnose.cutoff_hz":
+        raise ConfigError(f"{name}={problem}; lower it")
+    top = differences_cutoff_limit_hz(fs)
+    return {**options, "cutoff_hz": top}, f"{name}={problem}: the states are filtered at {top:g} Hz"
 
 
 MIN_WINDOW_SAMPLES = 5  # the shortest re-start window of the simulation error, in samples of the slowest file

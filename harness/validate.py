@@ -208,19 +208,20 @@ def _check_harmonics(cfg: DictConfig) -> None:
 def _check_differences_cutoff(cfg: DictConfig, cutoff: float | None, fs: float) -> None:
     """Refuse a cut-off above an eighth of the rate where the states are differences: identify.cutoff_hz with
     `butterworth`, and the IV estimator's reference_cutoff_hz where it has no period (it then filters)."""
-    from identify.derivatives import differences_cutoff_limit_hz
+    from identify.derivatives import differences_cutoff_problem
 
-    top = differences_cutoff_limit_hz(fs)
     checked = [("identify.cutoff_hz", cutoff, OmegaConf.select(cfg, "identify.derivatives") == "butterworth")]
     if OmegaConf.select(cfg, "estimator.name") == "iv":
         reference = OmegaConf.select(cfg, "estimator.options.reference_cutoff_hz")
         by_differences = OmegaConf.select(cfg, "estimator.options.period_s") is None
         checked.append(("estimator.options.reference_cutoff_hz", reference, by_differences))
     for key, value, differences in checked:
-        if value is not None and differences and float(value) > top * 1.02:
+        if value is None or not differences:
+            continue
+        problem = differences_cutoff_problem(float(value), fs, f"system.sensor.sample_rate_hz={fs:g}")
+        if problem:
             raise ConfigError(
-                f"{key}={float(value):g} Hz is above {top:g} Hz, an eighth of system.sensor.sample_rate_hz={fs:g}: "
-                "the differences that make the accelerations lose a fifth of them there and more above; lower it"
+                f"{key}={problem}; lower it"
                 + (" (or set identify.derivatives=spectral or kalman)" if key == "identify.cutoff_hz" else "")
             )
 

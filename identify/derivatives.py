@@ -36,6 +36,7 @@ __all__ = [
     "States",
     "derive_states",
     "differences_cutoff_limit_hz",
+    "differences_cutoff_problem",
     "excitation_bandwidth_hz",
     "gradient",
     "reduce_record",
@@ -175,6 +176,19 @@ def differences_cutoff_limit_hz(fs: float) -> float:
 _RATE_TOLERANCE = 0.02  # a cut-off set at the limit passes a log whose median step jitters (1 % at most)
 
 
+def differences_cutoff_problem(cutoff_hz: float, fs: float, sampled: str) -> str | None:
+    """What is wrong with a `butterworth` cut-off [Hz] above `differences_cutoff_limit_hz` of `fs` (within the rate's
+    jitter), for a message that names the key before it and `sampled` (what sampled at fs: a file, a setting); None
+    where it is within the limit."""
+    top = differences_cutoff_limit_hz(fs)
+    if cutoff_hz <= top * (1 + _RATE_TOLERANCE):
+        return None
+    return (
+        f"{cutoff_hz:g} Hz is above {top:g} Hz, an eighth of {sampled}: the differences that make the accelerations "
+        "lose a fifth of them there and more above"
+    )
+
+
 def _cutoff(
     data: Dataset, fs: float, cutoff_hz: float | None, cutoff_factor: float, *, differences: bool = False
 ) -> float:
@@ -186,11 +200,10 @@ def _cutoff(
         cutoff_hz = min(cutoff_factor * excitation_bandwidth_hz(data.q, fs), top)
     if not 0 < cutoff_hz < 0.5 * fs:
         raise ValueError(f"cutoff_hz must lie in (0, {0.5 * fs:g}) Hz for a {fs:g} Hz signal, got {cutoff_hz}")
-    if differences and cutoff_hz > top * (1 + _RATE_TOLERANCE):
+    problem = differences_cutoff_problem(cutoff_hz, fs, f"its {fs:g} Hz sampling") if differences else None
+    if problem:
         raise DataError(
-            f"{data.source}: cutoff_hz={cutoff_hz:g} Hz is above {top:g} Hz, an eighth of its {fs:g} Hz sampling: "
-            "the differences that make the accelerations lose a fifth of them there and more above; lower it (or "
-            "derive the states by the 'spectral' or 'kalman' method)"
+            f"{data.source}: cutoff_hz={problem}; lower it (or derive the states by the 'spectral' or 'kalman' method)"
         )
     return float(cutoff_hz)
 

@@ -1781,6 +1781,7 @@ def _slow_friction_ramps(
         return ext, {}
     count = np.maximum(np.count_nonzero(used, axis=0), 1)
     records = np.unique(s.record)
+    measured = s.smooth(s.tau)  # low-passed once, for every width tried
 
     def errors(vt: float | None) -> tuple[np.ndarray, np.ndarray]:
         """(nv,) mean square error over the used training torques, and (records, nv) per record, with every
@@ -1789,7 +1790,7 @@ def _slow_friction_ramps(
         if vt is not None:
             speeds[joints] = vt
         trial = dataclasses.replace(ext, friction_speed=speeds, notes=[])  # calibrated_xml adds to the notes
-        error = np.where(used, s.smooth(s.tau) - s.smooth(predict(trial)), 0.0)
+        error = np.where(used, measured - s.smooth(predict(trial)), 0.0)
         sse = np.zeros((len(records), error.shape[1]))
         for k, r in enumerate(records):
             rows = s.record == r

@@ -20,7 +20,7 @@ import pinocchio as pin
 from dynamics.base import BaseParameters
 from dynamics.errors import RankDeficientError
 from dynamics.regressor import EFFECT_COLUMNS, ParameterModel
-from identify.derivatives import derive_states, differences_cutoff_limit_hz, excitation_bandwidth_hz
+from identify.derivatives import derive_states
 from identify.estimators.covariance import sandwich, score
 from identify.estimators.least_squares import ols
 from identify.estimators.signals import span, torque_sigma
@@ -113,14 +113,11 @@ def _tracks(q: np.ndarray, q_ref: np.ndarray, *, tol_rad: float = 0.05) -> bool:
 
 
 def _reference(problem: Problem, cutoff_hz: float | None, period_s: float | None) -> Any:
-    data = problem.data
-    fs = 1.0 / data.dt
-    if cutoff_hz is None:  # by differences (no period), no higher than they are accurate
-        top = 0.4 * fs if period_s is not None else differences_cutoff_limit_hz(fs)
-        cutoff_hz = min(2.0 * excitation_bandwidth_hz(data.q, fs), top)
+    # None: twice the excitation's bandwidth, within what the method allows (the differences' limit without a period)
+    options = {"cutoff_hz": cutoff_hz, "cutoff_factor": 2.0}
     if period_s is not None:
-        return derive_states(data, "spectral", period_s=period_s, cutoff_hz=cutoff_hz)
-    return derive_states(data, "butterworth", cutoff_hz=cutoff_hz)
+        return derive_states(problem.data, "spectral", period_s=period_s, **options)
+    return derive_states(problem.data, "butterworth", **options)
 
 
 def iv(
