@@ -26,6 +26,10 @@ numbers in their form: `author_params_of`) integrated by SciPy under open-loop s
 excited the real arm, and measured through the drivers' CAN quantisation. Its friction is theirs, cf atan(100 dq)
 + b dq, a shape outside the candidates' exact forms (its limit cf pi / 2 is the Coulomb level), and its rotor
 enters as they write it (`lab_model_table`).
+
+A third owes nothing to MuJoCo's stepping or to the harness's model layer, for any arm (`pinocchio_rollout`): the
+model as Pinocchio's own MJCF parser reads it, integrated by RK4 of the articulated-body algorithm with hardware's
+Coulomb friction, under a PD loop with gravity feed-forward tracking chirps (`pinocchio_table`).
 """
 
 from __future__ import annotations
@@ -65,6 +69,9 @@ __all__ = [
     "lab_markdown",
     "lab_model_table",
     "lab_rollout",
+    "pinocchio_cases",
+    "pinocchio_rollout",
+    "pinocchio_table",
     "rollout",
     "servo_log",
     "servo_log_cases",
@@ -378,6 +385,10 @@ def _keep_friction_ramps(plant: Plant, m: mujoco.MjModel, changed: set[int]) -> 
         m.dof_solref[dof], m.dof_solimp[dof], _ = kept_ramp(fc, speed[dof], lead[dof], invweight, m.opt.timestep)
 
 
+# applied by the testbed as forces against the motion (`_applied_forces`)
+_FORCE_EFFECTS = ("cogging", "stribeck_friction", "quadratic_drag", "torque_disturbance", "friction_drift")
+
+
 def _applied_forces(
     effects: list[Injected], names: tuple[str, ...], t: float, q: np.ndarray, dq: np.ndarray
 ) -> np.ndarray:
@@ -609,6 +620,163 @@ def _measure(
     )
 
 
+# the hidden effects `pinocchio_rollout` puts in its plant (besides `_applied_forces`' and `SENSOR_EFFECTS`)
+PINOCCHIO_EFFECTS = ("viscous_friction", "coulomb_friction", "armature", "joint_stiffness")
+PINOCCHIO_FRICTION_WIDTH = 0.01  # [rad/s] its Coulomb friction F tanh(dq / width): nearly a step, and smooth
+
+
+def pinocchio_rollout(
+    mjcf: str | Path,
+    *,
+    settings: TestbedSystem,
+    effects: Sequence[Injected] = (),
+    rng: np.random.Generator,
+    duration_s: float,
+    rate_hz: float = 500.0,
+    control_hz: float = 1000.0,
+    physics_hz: float = 4000.0,
+    source: str = "pinocchio_rollout",
+) -> tuple[Plant, Dataset]:
+    """A plant that owes nothing to MuJoCo: the model as Pinocchio's own MJCF parser reads it (not the harness's
+    Pinocchio twin of the compiled model), integrated by a fixed-step RK4 of Pinocchio's articulated-body
+    algorithm at `physics_hz`, with the file's joint damping, frictionloss (a Coulomb friction F tanh(dq /
+    `PINOCCHIO_FRICTION_WIDTH`), as hardware has it, not MuJoCo's soft ramp) and stiffness as plain forces.
+
+    Its controller is not the testbed's either: a PD loop at `control_hz` on the measured (noisy, quantised) angles
+    and their smoothed differences, with the gravity torque of the parsed model as feed-forward, tracking per
+    joint a chirp from 0.1 to `settings.max_hz` plus two sines about `settings.center`, at `settings.amplitude`,
+    with `settings.kp` and `settings.kd`. Each command is held over its control period; every sample logs the
+    angles read at its control tick and the command computed from them (a lead of half a control period). Torque
+    noise `settings.sigma_tau`, read to `settings.tau_resolution`.
+
+    Raises:
+        ValueError: an effect it cannot hide, a model Pinocchio reads otherwise than MuJoCo compiles it (inertia
+            or bias torques that differ: `_check_parsed`), or rates that are not whole multiples.
+        ModelError: the integration diverged.
+    """
+    import pinocchio as pin  # the generator's own dependency, as SciPy is `lab_rollout`'s
+
+    bad = [e.effect for e in effects if e.effect not in PINOCCHIO_EFFECTS + _FORCE_EFFECTS + SENSOR_EFFECTS]
+    if bad:
+        valid = ", ".join(PINOCCHIO_EFFECTS + _FORCE_EFFECTS + SENSOR_EFFECTS)
+        raise ValueError(f"pinocchio_rollout cannot hide {bad[0]!r}; valid choices: {valid}")
+    per_control, per_sample = physics_hz / control_hz, control_hz / rate_hz
+    if abs(per_control - round(per_control)) > 1e-9 or abs(per_sample - round(per_sample)) > 1e-9:
+        raise ValueError(f"pinocchio_rollout: rates {physics_hz:g} / {control_hz:g} / {rate_hz:g} Hz are not multiples")
+    plant = load_plant(mjcf)
+    nominal, model = pin.buildModelFromMJCF(str(plant.path)), pin.buildModelFromMJCF(str(plant.path))
+    _check_parsed(plant, nominal, pin)
+    n, names = plant.nv, plant.joint_names
+    m = plant.mj_model
+    damping, friction, stiffness = m.dof_damping.copy(), m.dof_frictionloss.copy(), m.jnt_stiffness.copy()
+    springref = m.qpos_spring.copy()
+    for e in effects:
+        j = names.index(e.joint)
+        if e.effect == "viscous_friction":
+            damping[j] += e.size
+        elif e.effect == "coulomb_friction":
+            friction[j] += e.size
+        elif e.effect == "armature":
+            model.armature[j] += e.size
+        elif e.effect == "joint_stiffness":
+            stiffness[j] += e.size
+    data, nominal_data = model.createData(), nominal.createData()
+    forced = [e for e in effects if e.effect in _FORCE_EFFECTS]
+    limit = plant.actuation.torque_limit()
+
+    def accel(t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        passive = (
+            -damping * dq
+            - friction * np.tanh(dq / PINOCCHIO_FRICTION_WIDTH)
+            - stiffness * (q - springref)
+            + _applied_forces(forced, names, t, q, dq)
+        )
+        return np.asarray(pin.aba(model, data, q, dq, tau + passive))
+
+    center = np.array(settings.center) if settings.center else np.zeros(n)
+    amplitude = np.array(settings.amplitude)
+    kp, kd = np.array(settings.kp), np.array(settings.kd)
+    phase = rng.uniform(0, 2 * np.pi, (n, 3))
+    sines = rng.uniform(0.15, 0.75 * settings.max_hz, (n, 2))
+
+    def reference(t: float) -> tuple[np.ndarray, np.ndarray]:
+        sweep = (settings.max_hz - 0.1) / duration_s  # [Hz/s] the chirp's rise
+        arg = np.column_stack([2 * np.pi * (0.1 * t + 0.5 * sweep * t * t) * np.ones(n), 2 * np.pi * sines * t]) + phase
+        rate = np.column_stack([2 * np.pi * (0.1 + sweep * t) * np.ones(n), 2 * np.pi * sines])
+        weight = np.array([0.5, 0.25, 0.25])
+        swing, swing_rate = (np.sin(arg) - np.sin(phase)) @ weight, (rate * np.cos(arg)) @ weight
+        fade, fade_rate = (t, 1.0) if t < 1.0 else (1.0, 0.0)  # the swing grows over the first second from rest
+        return center + amplitude * fade * swing, amplitude * (fade * swing_rate + fade_rate * swing)
+
+    h = 1.0 / physics_hz
+    steps_per_control, controls_per_sample = int(round(per_control)), int(round(per_sample))
+    samples = int(round(duration_s * rate_hz))
+    q, dq = center.copy(), np.zeros(n)
+    time, q_log, tau_log = np.arange(samples) / rate_hz, np.zeros((samples, n)), np.zeros((samples, n))
+    read_before, speed = None, np.zeros(n)
+    act = np.asarray(plant.actuated, bool)
+    for k in range(samples * controls_per_sample):
+        t = k / control_hz
+        read = np.round((q + rng.normal(0.0, _ENCODER_SIGMA, n)) / _ENCODER_RESOLUTION) * _ENCODER_RESOLUTION
+        if read_before is not None:
+            speed = 0.7 * speed + 0.3 * (read - read_before) * control_hz
+        read_before = read
+        target, target_speed = reference(t)
+        gravity = pin.computeGeneralizedGravity(nominal, nominal_data, read)
+        tau = np.where(act, np.clip(kp * (target - read) + kd * (target_speed - speed) + gravity, -limit, limit), 0.0)
+        if k % controls_per_sample == 0:
+            q_log[k // controls_per_sample], tau_log[k // controls_per_sample] = read, tau
+        for i in range(steps_per_control):
+            s = t + i * h
+            k1q, k1v = dq, accel(s, q, dq, tau)
+            k2q, k2v = dq + h / 2 * k1v, accel(s + h / 2, q + h / 2 * k1q, dq + h / 2 * k1v, tau)
+            k3q, k3v = dq + h / 2 * k2v, accel(s + h / 2, q + h / 2 * k2q, dq + h / 2 * k2v, tau)
+            k4q, k4v = dq + h * k3v, accel(s + h, q + h * k3q, dq + h * k3v, tau)
+            q = q + h / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
+            dq = dq + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
+            raise ModelError(f"pinocchio_rollout {plant.name}: the integration diverged at t = {t:.3f} s")
+    q_log, tau_log = _sensed(names, effects, time, q_log, tau_log)
+    tau_log = tau_log + rng.normal(0.0, 1.0, tau_log.shape) * np.array(settings.sigma_tau)
+    tau_log = np.where(act, np.round(tau_log / settings.tau_resolution) * settings.tau_resolution, 0.0)
+    return plant, Dataset(
+        time=time,
+        q=q_log,
+        tau=tau_log,
+        joint_names=names,
+        actuated=act,
+        source=source,
+        tau_lead_s=0.5 / control_hz,
+        meta={"generator": "identify.diagnose.testbed.pinocchio_rollout", "effects": [e.__dict__ for e in effects]},
+    )
+
+
+def _check_parsed(plant: Plant, parsed: Any, pin: Any) -> None:
+    """Refuse a model Pinocchio's MJCF parser reads otherwise than MuJoCo compiles it: the joint-space inertia
+    (armature included) and the bias torques at a few random states, to 1e-6 of their size."""
+    m = plant.mj_model
+    if parsed.nq != m.nq or parsed.nv != m.nv:
+        raise ValueError(f"{plant.path}: Pinocchio reads {parsed.nv} joints, MuJoCo {m.nv}")
+    d, data = mujoco.MjData(m), parsed.createData()
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        lo, hi = np.where(np.isfinite(plant.q_range), plant.q_range, [[-np.pi, np.pi]]).T
+        d.qpos[:], d.qvel[:] = rng.uniform(lo, hi), rng.normal(0.0, 1.0, m.nv)
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        ours = pin.crba(parsed, data, d.qpos.copy())
+        ours = np.triu(ours) + np.triu(ours, 1).T
+        bias = pin.rnea(parsed, data, d.qpos.copy(), d.qvel.copy(), np.zeros(m.nv))
+        for what, a, b in (("inertia", ours, M), ("bias torque", bias, d.qfrc_bias)):
+            if np.max(np.abs(a - b)) > 1e-6 * max(1.0, float(np.max(np.abs(b)))):
+                raise ValueError(
+                    f"{plant.path}: Pinocchio's MJCF parser reads its {what} otherwise than MuJoCo compiles it (by "
+                    f"{np.max(np.abs(a - b)):.3g}): a compiler option it does not apply (settotalmass, boundmass, "
+                    "boundinertia) or an inertia it does not read; write the inertials MuJoCo computes into the file"
+                )
+
+
 def hidden_effect_cases() -> list[tuple[str, list[Injected], str]]:
     """(system, effects, expectation) of the benchmark's table: `named` (the first effect is named first),
     `unexplained` (outside the vocabulary) or `clean`. Effects at two sizes and on several joints."""
@@ -767,6 +935,70 @@ def arm_effect_table(robots: str | Path, folder: str | Path, seeds: range = rang
         for effects in arm_cases(arm):
             runs = [diagnose_case(arm, effects, seed, mjcf=path, settings=settings) for seed in seeds]
             rows.append(_seeds_row(arm, effects, runs, seeds))
+    return rows
+
+
+def pinocchio_cases(arm: str) -> list[tuple[list[Injected], str]]:
+    """(effects, expectation) `pinocchio_table` hides in a built-in system of `SYSTEMS` or an arm of `ARMS`:
+    clean first, then effects in and out of the vocabulary, on joints from the base to the wrist."""
+    if arm in SYSTEMS:
+        return {
+            "pendulum": [([], "clean"), ([Injected("viscous_friction", "swing", 0.01)], "named")],
+            "two_link": [
+                ([], "clean"),
+                ([Injected("viscous_friction", "elbow", 0.02)], "named"),
+                ([Injected("coulomb_friction", "shoulder", 0.08)], "named"),
+                ([Injected("armature", "elbow", 0.004)], "named"),
+                ([Injected("time_delay", "shoulder", 0.006)], "named"),
+                ([Injected("quadratic_drag", "shoulder", 0.03)], "unexplained"),
+            ],
+            "arm3": [
+                ([], "clean"),
+                ([Injected("viscous_friction", "pitch", 0.1)], "named"),
+                ([Injected("coulomb_friction", "elbow", 0.1)], "named"),
+                ([Injected("quadratic_drag", "yaw", 0.1)], "unexplained"),
+            ],
+            "wheel_pendulum": [([], "clean"), ([Injected("coulomb_friction", "wheel", 0.01)], "named")],
+        }[arm]
+    j = {
+        "ur5e": ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint"),
+        "panda_nohand": ("joint2", "joint4", "joint6"),
+        "gen3": ("joint_2", "joint_4", "joint_6"),
+    }[arm]
+    big = 1.0 if arm == "ur5e" else 0.5  # as `arm_cases`
+    return [
+        ([], "clean"),
+        ([Injected("viscous_friction", j[1], big)], "named"),
+        ([Injected("coulomb_friction", j[0], 2.0 * big)], "named"),
+        ([Injected("armature", j[2], 0.1 * big)], "named"),
+        ([Injected("torque_gain", j[0], 0.1)], "named"),
+        ([Injected("quadratic_drag", j[1], big)], "unexplained"),
+    ]
+
+
+# the Menagerie arms of `pinocchio_table`: the xArm7 is left out, its frictionloss at MuJoCo's default solver
+# parameters is a ramp 7.7 rad/s wide on its last joint, which a plant with hardware's friction does not have
+PINOCCHIO_ARMS = ("ur5e", "panda_nohand", "gen3")
+
+
+def pinocchio_table(robots: str | Path, folder: str | Path, seeds: range = range(4)) -> list[dict[str, Any]]:
+    """One row per built-in system and arm of `PINOCCHIO_ARMS` (from `robots`, driven by torque through
+    `torque_driven`, written into `folder`) and case of `pinocchio_cases`, every record made by
+    `pinocchio_rollout` (10 s to train on, 5 s to validate): the row of the first seed, with `z_seeds` and
+    `ok_seeds` of every seed as in `arm_effect_table`."""
+    rows = []
+    models = {s: load_plant(s).path for s in SYSTEMS} | {
+        a: torque_driven(Path(robots) / f"{a}.xml", folder) for a in PINOCCHIO_ARMS
+    }
+    for system, path in models.items():
+        generate = partial(pinocchio_rollout, path, settings=SYSTEMS.get(system) or ARMS[system])
+        for effects, expect in pinocchio_cases(system):
+            runs = [diagnose_case(system, effects, seed, generate=generate) for seed in seeds]
+            row = _seeds_row(system, effects, runs, seeds)
+            row["expect"] = expect
+            row["ok"] = _ok(expect, effects[0] if effects else None, runs[0][1], runs[0][0])
+            row["ok_seeds"] = [_ok(expect, effects[0] if effects else None, dg, plant) for plant, dg in runs]
+            rows.append(row)
     return rows
 
 
