@@ -36,8 +36,9 @@ class Dataset:
         source: where the data came from (a file path or "simulation"), used in error messages.
         tau_lead_s: the torque reported at row k acted over an interval centred at time[k] + tau_lead_s [s]:
             half a sample for a zero-order-hold controller whose command is logged at the start of its
-            interval (the simulator's case), 0 for a torque sampled at the instant. Derivative filters
-            evaluate the states at that time, so that states and torque describe the same instant.
+            interval (the simulator's case), 0 for a torque sampled at the instant, a few ms for a command the
+            drive applies later (its current loop's lag) or angles reported late. Derivative filters evaluate
+            the states at that time, so that states and torque describe the same instant.
         meta: free-form facts about how the data was made (seed, sensor, saturation, ...).
     """
 

@@ -59,6 +59,7 @@ from identify.diagnose import (
     with_found_lead,
 )
 from identify.diagnose.anomalies import still_joints
+from identify.diagnose.candidates import MAX_DELAY_S
 from identify.diagnose.residuals import noise_floor
 from identify.diagnose.state_noise import check_full_rate_state_noise
 from identify.excitation_check import check_excitation
@@ -123,19 +124,21 @@ def data_paths(cfg: DictConfig) -> list[Path]:
 
 def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
     """The records with `data.tau_lead_s` set: the torque logged at row k acted over an interval centred `lead`
-    later (half a sample where a controller logs its command at the start of a zero-order hold).
+    later: half a sample where a controller logs its command at the start of a zero-order hold; a few
+    milliseconds where the column is a command the drive applies later (its current loop's lag) or the angles are
+    reported later than the torque (a bus's latency).
 
     Raises:
-        ConfigError: a lead of a sample or more of some file (the file's rows are then not the torque's).
+        ConfigError: a lead above `MAX_DELAY_S` (no drive's lag or bus's latency: a time column of another clock).
     """
     if lead == 0:
         return datasets
-    for d in datasets:
-        if lead >= d.dt:
-            raise ConfigError(
-                f"data.tau_lead_s={lead:g} s is not below one sample ({d.dt:g} s) of {d.source}: it is the "
-                "offset of a held torque's interval from its row, at most half a sample for a zero-order hold"
-            )
+    if lead > MAX_DELAY_S:
+        raise ConfigError(
+            f"data.tau_lead_s={lead:g} s is above {MAX_DELAY_S * 1e3:g} ms: a held torque's offset (half a sample), a "
+            "drive's lag behind a commanded torque or angles reported late are a few ms; a longer offset is a time "
+            "column of another clock: check the files' time columns"
+        )
     return [dataclasses.replace(d, tau_lead_s=lead) for d in datasets]
 
 

@@ -365,17 +365,31 @@ def _kalman(
     return States(xs[:, 0], xs[:, 1], xs[:, 2], _decimated(valid, decimate))
 
 
-def _shift(x: np.ndarray, fraction: float) -> np.ndarray:
-    """x evaluated `fraction` of a sample later (|fraction| <= 1), by linear interpolation; ends held."""
-    if fraction == 0:
+def _shift(x: np.ndarray, samples: float) -> np.ndarray:
+    """x evaluated `samples` sample intervals later (any real number: whole rows, then linear interpolation between
+    neighbours); the rows it would take from beyond an end hold that end's value (`_shifted_valid` marks them)."""
+    if samples == 0:
         return x
-    if abs(fraction) > 1 + 1e-9:
-        raise ValueError(f"a shift of {fraction} samples is beyond the one-sample interpolation")
-    fraction = min(max(fraction, -1.0), 1.0)  # a whole sample, to the round-off of the times it came from
-    step = 1 if fraction > 0 else -1
-    neighbour = np.roll(x, -step, axis=0)
-    neighbour[-1 if step > 0 else 0] = x[-1 if step > 0 else 0]
-    return (1 - abs(fraction)) * x + abs(fraction) * neighbour
+    whole = int(np.floor(samples + 1e-9))  # a whole number of rows, to the round-off of the times it came from
+    part = max(samples - whole, 0.0)
+    n = len(x)
+    rows = np.clip(np.arange(n) + whole, 0, n - 1)
+    if part <= 1e-12:
+        return x[rows]  # type: ignore[no-any-return]
+    after = np.clip(np.arange(n) + whole + 1, 0, n - 1)
+    return (1 - part) * x[rows] + part * x[after]  # type: ignore[no-any-return]
+
+
+def _shifted_valid(valid: np.ndarray, samples: float) -> np.ndarray:
+    """(N,) the rows whose states, `samples` later, come from trusted rows within the record (`_shift`)."""
+    n = len(valid)
+    lo, hi = int(np.floor(samples + 1e-9)), int(np.ceil(samples - 1e-9))
+    out = valid.copy()
+    for k in {lo, hi}:
+        src = np.arange(n) + k
+        inside = (src >= 0) & (src < n)
+        out &= inside & valid[np.clip(src, 0, n - 1)]
+    return out
 
 
 DERIVATIVES: dict[str, Callable[..., States]] = {
@@ -438,8 +452,14 @@ def derive_states(data: Dataset, method: str, **options: Any) -> States:
         return states  # the simulator's states already belong to the instant of the torque
     # Evaluate the (smooth, filtered) states at the instant the reported torque belongs to: a zero-order
     # hold's half-sample offset would otherwise bias the parameters by about two standard deviations.
-    fraction = data.tau_lead_s / data.dt
-    return States(_shift(states.q, fraction), _shift(states.dq, fraction), _shift(states.ddq, fraction), states.valid)
+    # A lead of a sample or more (a drive's lag behind a commanded torque, angles reported late) moves whole rows.
+    samples = data.tau_lead_s / data.dt
+    return States(
+        _shift(states.q, samples),
+        _shift(states.dq, samples),
+        _shift(states.ddq, samples),
+        _shifted_valid(states.valid, samples),
+    )
 
 
 # A reduced record keeps its rate at least this many times the band it must carry: states band-limited at

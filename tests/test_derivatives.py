@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -228,3 +230,24 @@ def test_the_cut_off_of_reduced_states_is_the_one_they_were_derived_with() -> No
     reduced = reduce_record(data, "butterworth", 2, cutoff_hz=10.0)
     assert state_cutoff_hz(reduced, "given") == 10.0
     assert state_cutoff_hz(data, "given") is None and state_cutoff_hz(data, "simulator") is None
+
+
+@pytest.mark.parametrize("samples", [0.5, 1.0, 2.75])
+def test_states_are_read_at_a_torque_lead_of_any_number_of_samples(samples: float) -> None:
+    """`Dataset.tau_lead_s`: the states are evaluated that much after each row, half a sample for a held torque
+    and several for a drive that applies a commanded torque later; the rows whose states would come from beyond
+    the record are not trusted. (A lead of a sample or more was refused before: a drive's lag had no reading.)"""
+    rate, f = 500.0, 0.7
+    t = np.arange(3000) / rate
+    q = np.column_stack([np.sin(2 * np.pi * f * t), 0.5 * np.cos(2 * np.pi * 1.3 * f * t)])
+    data = Dataset(time=t, q=q, tau=np.zeros_like(q), joint_names=("a", "b"), actuated=np.ones(2, bool))
+    at_rows = derive_states(data, "butterworth", cutoff_hz=10.0)
+    lead = samples / rate
+    later = derive_states(dataclasses.replace(data, tau_lead_s=lead), "butterworth", cutoff_hz=10.0)
+    exact = np.column_stack([np.sin(2 * np.pi * f * (t + lead)), 0.5 * np.cos(2 * np.pi * 1.3 * f * (t + lead))])
+    rows = later.valid
+    assert np.max(np.abs(later.q[rows] - exact[rows])) < 2e-5
+    assert np.max(np.abs(at_rows.q[rows] - exact[rows])) > 50 * np.max(np.abs(later.q[rows] - exact[rows]))
+    assert not np.any(later.valid & ~at_rows.valid)
+    ends = np.flatnonzero(at_rows.valid)
+    assert not later.valid[ends[-1] - int(np.ceil(samples)) + 1 :].any()

@@ -79,3 +79,34 @@ def test_the_plant_refuses_what_it_cannot_hide_and_a_model_pinocchio_reads_other
     settings = SYSTEMS["pendulum"]
     with pytest.raises(ValueError, match=r"parser reads its inertia otherwise than MuJoCo compiles it.*settotalmass"):
         pinocchio_rollout(xml, settings=settings, rng=rng, duration_s=1.0)
+
+
+def test_a_drives_lag_behind_a_logged_command_is_named_with_the_lead_to_declare_and_declared_is_clean() -> None:
+    """The drives apply each logged command through a 4 ms first-order lag (a current loop's): the torque leads
+    the motion by two samples and more, which no held torque makes, so the records are not read so on their own.
+    The note gives the lead to declare; declared (`data.tau_lead_s`, now accepted at a sample or more), the clean
+    arm is `no_discrepancy` with no lead left. Before, the note only said to check the time columns, and the
+    declaration was refused: such a log had no reading at all."""
+    import dataclasses
+    import re
+
+    from identify.diagnose import diagnose, with_found_lead
+
+    plant = load_plant("two_link")
+    generate = partial(pinocchio_rollout, plant.path, settings=SYSTEMS["two_link"], actuator_lag_s=0.004)
+    rngs = np.random.default_rng(0).spawn(2)
+    _, train = generate(rng=rngs[0], duration_s=10.0)
+    _, val = generate(rng=rngs[1], duration_s=5.0, source="validation")
+    fit = partial(diagnose, plant, derivative_options={"cutoff_hz": 10.0})
+    records = [dataclasses.replace(d, tau_lead_s=0.0) for d in (train, val)]
+    dg = with_found_lead(fit, records[:1], records[1:], np.random.default_rng(0))
+    assert "torque_lead_found" not in dg.info
+    (note,) = [n for n in dg.notes if n.startswith("the measured torque leads the motion")]
+    assert "a command the drive applies later" in note, note
+    declared = float(re.search(r"declare data\.tau_lead_s=([0-9.e-]+) and diagnose again", note).group(1))  # type: ignore[union-attr]
+    assert 0.004 < declared < 0.005, declared  # the lag, and the hold's half sample (0.5 ms)
+    records = [dataclasses.replace(d, tau_lead_s=declared) for d in (train, val)]
+    dg = with_found_lead(fit, records[:1], records[1:], np.random.default_rng(0), known=True)
+    assert dg.verdict == "no_discrepancy", dg.verdict_reason
+    left = dg.info["torque_lead"]
+    assert abs(left["delay_s"]) < 3 * left["std_s"], left

@@ -1002,7 +1002,8 @@ def test_a_torque_lead_found_in_the_data_is_read_and_a_lead_of_samples_is_not() 
     """`with_found_lead` (sysid-diagnose with data.tau_lead_s unset): the testbed's 0.75 ms lead, undeclared, is
     found, the records are read with it and diagnosed again: clean, with no lead left beside the effects. A torque
     column logged two samples early leads by more than any held torque's timing: it is not read so, and the note
-    says to check the time columns instead of declaring it (which sysid-diagnose refuses at a sample or more)."""
+    says to check the time columns, or to declare it where the torque column is a command the drive applies later
+    (`tests/test_diagnose_pinocchio_plant.py` has such a drive)."""
     from functools import partial
 
     from identify.diagnose import diagnose, with_found_lead

@@ -47,6 +47,7 @@ from identify.diagnose.calibrate import (
     predict_measured_torque,
 )
 from identify.diagnose.candidates import (
+    MAX_DELAY_S,
     SMOOTH_COULOMB_SPEEDS,
     SOFT_FRICTION,
     Candidate,
@@ -2032,12 +2033,24 @@ def _lead_note(lead: tuple[float, float] | None, dt: float, declared: float) -> 
     if lead is None or not _found_lead(lead, dt):
         return []
     size = f"{_lead_size(lead, dt)})"
-    if declared - lead[0] >= dt:  # no timing of a held torque: it acts within the sample it is logged for
+    total = declared - lead[0]
+    if total >= dt:  # no timing of a held torque: it acts within the sample it is logged for
+        held = f"{size}: with the {declared:g} s declared (data.tau_lead_s) that is a sample or more, more than a "
+        held += "torque held over each sample makes (half a sample)"
+        stand_in = (
+            "A lead left so is fitted as armature and a negative change of damping, and the effects named beside it "
+            "may stand in for it"
+        )
+        if total > MAX_DELAY_S:
+            return [
+                f"{held}, and more than {MAX_DELAY_S * 1e3:g} ms, more than a drive's lag or a bus's latency: the "
+                f"torque and the angles were logged at different instants: check the files' time columns. {stand_in}"
+            ]
         return [
-            f"{size}: with the {declared:g} s declared (data.tau_lead_s) that is a sample or more, more than a torque "
-            "held over each sample makes (half a sample); the torque and the angles were logged at different "
-            "instants: check the files' time columns. A lead left so is fitted as armature and a negative change "
-            "of damping, and the effects named beside it may stand in for it"
+            f"{held}. A torque column that is a command the drive applies later (its current loop's lag), or angles "
+            "reported later than the torque (a bus's latency), lead so: for such a log declare "
+            f"data.tau_lead_s={total:.3g} and diagnose again; otherwise the torque and the angles were logged at "
+            f"different instants: check the files' time columns. {stand_in}"
         ]
     return [
         f"{size}: a torque held over each sample and logged "

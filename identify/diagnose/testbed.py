@@ -635,6 +635,7 @@ def pinocchio_rollout(
     rate_hz: float = 500.0,
     control_hz: float = 1000.0,
     physics_hz: float = 4000.0,
+    actuator_lag_s: float = 0.0,
     source: str = "pinocchio_rollout",
 ) -> tuple[Plant, Dataset]:
     """A plant that owes nothing to MuJoCo: the model as Pinocchio's own MJCF parser reads it (not the harness's
@@ -647,7 +648,8 @@ def pinocchio_rollout(
     joint a chirp from 0.1 to `settings.max_hz` plus two sines about `settings.center`, at `settings.amplitude`,
     with `settings.kp` and `settings.kd`. Each command is held over its control period; every sample logs the
     angles read at its control tick and the command computed from them (a lead of half a control period). Torque
-    noise `settings.sigma_tau`, read to `settings.tau_resolution`.
+    noise `settings.sigma_tau`, read to `settings.tau_resolution`. `actuator_lag_s` > 0: the drives apply each
+    command through a first-order lag of that time constant (a current loop's), and the log holds the command.
 
     Raises:
         ValueError: an effect it cannot hide, a model Pinocchio reads otherwise than MuJoCo compiles it (inertia
@@ -709,6 +711,8 @@ def pinocchio_rollout(
         return center + amplitude * fade * swing, amplitude * (fade * swing_rate + fade_rate * swing)
 
     h = 1.0 / physics_hz
+    follow = 1.0 - np.exp(-h / actuator_lag_s) if actuator_lag_s > 0 else 1.0  # of the command, each step
+    applied = np.zeros(n)
     steps_per_control, controls_per_sample = int(round(per_control)), int(round(per_sample))
     samples = int(round(duration_s * rate_hz))
     q, dq = center.copy(), np.zeros(n)
@@ -728,10 +732,11 @@ def pinocchio_rollout(
             q_log[k // controls_per_sample], tau_log[k // controls_per_sample] = read, tau
         for i in range(steps_per_control):
             s = t + i * h
-            k1q, k1v = dq, accel(s, q, dq, tau)
-            k2q, k2v = dq + h / 2 * k1v, accel(s + h / 2, q + h / 2 * k1q, dq + h / 2 * k1v, tau)
-            k3q, k3v = dq + h / 2 * k2v, accel(s + h / 2, q + h / 2 * k2q, dq + h / 2 * k2v, tau)
-            k4q, k4v = dq + h * k3v, accel(s + h, q + h * k3q, dq + h * k3v, tau)
+            applied = applied + follow * (tau - applied) if k or i else tau.copy()
+            k1q, k1v = dq, accel(s, q, dq, applied)
+            k2q, k2v = dq + h / 2 * k1v, accel(s + h / 2, q + h / 2 * k1q, dq + h / 2 * k1v, applied)
+            k3q, k3v = dq + h / 2 * k2v, accel(s + h / 2, q + h / 2 * k2q, dq + h / 2 * k2v, applied)
+            k4q, k4v = dq + h * k3v, accel(s + h, q + h * k3q, dq + h * k3v, applied)
             q = q + h / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
             dq = dq + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
