@@ -955,7 +955,11 @@ def pinocchio_cases(arm: str) -> list[tuple[list[Injected], str]]:
                 ([Injected("coulomb_friction", "shoulder", 0.08)], "named"),
                 ([Injected("armature", "elbow", 0.004)], "named"),
                 ([Injected("time_delay", "shoulder", 0.006)], "named"),
+                ([Injected("torque_offset", "shoulder", 0.08)], "named"),
+                ([Injected("cogging", "shoulder", 0.08, 6.0)], "named"),
+                ([Injected("stribeck_friction", "elbow", 0.08, 0.1)], "named"),
                 ([Injected("quadratic_drag", "shoulder", 0.03)], "unexplained"),
+                ([Injected("torque_disturbance", "elbow", 0.1, 0.37)], "unexplained"),
             ],
             "arm3": [
                 ([], "clean"),
