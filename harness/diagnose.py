@@ -129,16 +129,19 @@ def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
     reported later than the torque (a bus's latency).
 
     Raises:
-        ConfigError: a lead above `MAX_DELAY_S` (no drive's lag or bus's latency: a time column of another clock).
+        ConfigError: a lead above `MAX_DELAY_S` and of a sample or more of some file (no held torque, drive's lag
+            or bus's latency: a time column of another clock). Under a sample any lead is a held torque's offset.
     """
     if lead == 0:
         return datasets
-    if lead > MAX_DELAY_S:
-        raise ConfigError(
-            f"data.tau_lead_s={lead:g} s is above {MAX_DELAY_S * 1e3:g} ms: a held torque's offset (half a sample), a "
-            "drive's lag behind a commanded torque or angles reported late are a few ms; a longer offset is a time "
-            "column of another clock: check the files' time columns"
-        )
+    for d in datasets:
+        if lead > MAX_DELAY_S and lead >= d.dt:
+            raise ConfigError(
+                f"data.tau_lead_s={lead:g} s is above {MAX_DELAY_S * 1e3:g} ms and a sample or more ({d.dt:g} s) of "
+                f"{d.source}: a held torque's offset (under a sample), a drive's lag behind a commanded torque or "
+                "angles reported late are a few ms; a longer offset is a time column of another clock: check the "
+                "files' time columns"
+            )
     return [dataclasses.replace(d, tau_lead_s=lead) for d in datasets]
 
 

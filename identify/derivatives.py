@@ -381,7 +381,7 @@ def _shift(x: np.ndarray, samples: float) -> np.ndarray:
 
 
 def _shifted_valid(valid: np.ndarray, samples: float) -> np.ndarray:
-    """(N,) the rows whose states, `samples` later, come from trusted rows within the record (`_shift`)."""
+    """(N,) the trusted rows whose states, `samples` later, come from trusted rows within the record (`_shift`)."""
     n = len(valid)
     lo, hi = int(np.floor(samples + 1e-9)), int(np.ceil(samples - 1e-9))
     out = valid.copy()
@@ -434,6 +434,18 @@ def derive_states(data: Dataset, method: str, **options: Any) -> States:
     if method not in DERIVATIVES:
         raise ValueError(f"unknown derivative method {method!r}; valid choices: {', '.join(sorted(DERIVATIVES))}")
     states = DERIVATIVES[method](data, **options)
+    if method not in ("simulator", "given") and data.tau_lead_s != 0:
+        # Evaluate the (smooth, filtered) states at the instant the reported torque belongs to: a zero-order
+        # hold's half-sample offset would otherwise bias the parameters by about two standard deviations. A lead
+        # of a sample or more (a drive's lag behind a commanded torque, angles reported late) moves whole rows.
+        # The simulator's states already belong to the instant of the torque.
+        samples = data.tau_lead_s / data.dt
+        states = States(
+            _shift(states.q, samples),
+            _shift(states.dq, samples),
+            _shift(states.ddq, samples),
+            _shifted_valid(states.valid, samples),
+        )
     trusted = int(np.count_nonzero(states.valid))
     if trusted < MIN_TRUSTED_ROWS:
         span = float(data.time[-1] - data.time[0])
@@ -448,18 +460,7 @@ def derive_states(data: Dataset, method: str, **options: Any) -> States:
             "time column. Give a longer record, or check that the time column is in seconds (a 500 Hz log timed in "
             "minutes reads as 30 kHz over a sixtieth of its length)"
         )
-    if method in ("simulator", "given") or data.tau_lead_s == 0:
-        return states  # the simulator's states already belong to the instant of the torque
-    # Evaluate the (smooth, filtered) states at the instant the reported torque belongs to: a zero-order
-    # hold's half-sample offset would otherwise bias the parameters by about two standard deviations.
-    # A lead of a sample or more (a drive's lag behind a commanded torque, angles reported late) moves whole rows.
-    samples = data.tau_lead_s / data.dt
-    return States(
-        _shift(states.q, samples),
-        _shift(states.dq, samples),
-        _shift(states.ddq, samples),
-        _shifted_valid(states.valid, samples),
-    )
+    return states
 
 
 # A reduced record keeps its rate at least this many times the band it must carry: states band-limited at

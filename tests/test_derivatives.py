@@ -250,4 +250,5 @@ def test_states_are_read_at_a_torque_lead_of_any_number_of_samples(samples: floa
     assert np.max(np.abs(at_rows.q[rows] - exact[rows])) > 50 * np.max(np.abs(later.q[rows] - exact[rows]))
     assert not np.any(later.valid & ~at_rows.valid)
     ends = np.flatnonzero(at_rows.valid)
-    assert not later.valid[ends[-1] - int(np.ceil(samples)) + 1 :].any()
+    last = ends[-1] - int(np.ceil(samples))  # the last row whose states come from trusted rows
+    assert later.valid[last] and not later.valid[last + 1 :].any()

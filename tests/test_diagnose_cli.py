@@ -247,7 +247,10 @@ def test_the_state_filter_is_the_data_configs_unless_diagnose_sets_one(csv_files
         ("++data.band_hz=0", r"data\.band_hz must be > 0"),
         ("++data.band_hz=[1,2]", r"data\.band_hz must be a number, got \[1, 2\]"),
         ("data.tau_lead_s=-0.001", r"data\.tau_lead_s must be >= 0, got -0\.001"),
-        ("data.tau_lead_s=0.1", r"data\.tau_lead_s=0\.1 s is above 20 ms: .*check the files' time columns"),
+        (
+            "data.tau_lead_s=0.1",
+            r"data\.tau_lead_s=0\.1 s is above 20 ms and a sample or more \(0\.002 s\) of .*train\.csv: .*time columns",
+        ),
         (
             "diagnose.derivatives=given",
             r"diagnose\.derivatives=given reads .* holds no accelerations .* butterworth or",
@@ -718,3 +721,18 @@ def test_a_model_with_mesh_files_is_diagnosed_and_its_calibrated_mjcf_loads_from
         calibrated = load_plant(out / name)  # from the run folder, the meshes beside the user's model
         assert float(calibrated.mj_model.body_mass[1]) == pytest.approx(mass, rel=1e-5)
         assert calibrated.damping[0] == pytest.approx(0.02, rel=0.2)
+
+
+def test_a_declared_torque_lead_is_refused_only_above_20_ms_and_a_sample() -> None:
+    """`data.tau_lead_s`: a drive's lag of a few samples is accepted (it was refused from one sample up); a lead
+    over 20 ms and a sample is a time column of another clock and is refused naming the file; under a sample any
+    lead is a held torque's offset, the half sample of a 20 Hz log's zero-order hold (25 ms) included."""
+    t = np.arange(200) / 500.0
+    zeros, both = np.zeros((200, 2)), np.ones(2, bool)
+    fast = Dataset(time=t, q=zeros, tau=zeros, joint_names=("a", "b"), actuated=both, source="fast.csv")
+    slow = Dataset(time=t * 25.0, q=zeros, tau=zeros, joint_names=("a", "b"), actuated=both, source="slow.csv")
+    assert cli._with_torque_lead([fast], 0.005)[0].tau_lead_s == 0.005
+    assert cli._with_torque_lead([slow], 0.025)[0].tau_lead_s == 0.025
+    assert cli._with_torque_lead([slow], 0.04)[0].tau_lead_s == 0.04  # above 20 ms, under the 50 ms sample
+    with pytest.raises(ConfigError, match=r"data\.tau_lead_s=0\.1 s is above 20 ms and a sample or more .* fast\.csv"):
+        cli._with_torque_lead([fast], 0.1)

@@ -711,8 +711,11 @@ def pinocchio_rollout(
         return center + amplitude * fade * swing, amplitude * (fade * swing_rate + fade_rate * swing)
 
     h = 1.0 / physics_hz
-    follow = 1.0 - np.exp(-h / actuator_lag_s) if actuator_lag_s > 0 else 1.0  # of the command, each step
-    applied = np.zeros(n)
+    # the lag over one step from y0 towards the held command u: y(h) = u + (y0 - u) decay, its mean over the
+    # step u + (y0 - u) mean (the torque the step applies; its end value would put it half a step early)
+    decay = float(np.exp(-h / actuator_lag_s)) if actuator_lag_s > 0 else 0.0
+    mean = actuator_lag_s / h * (1.0 - decay) if actuator_lag_s > 0 else 0.0
+    lagged = np.zeros(n)
     steps_per_control, controls_per_sample = int(round(per_control)), int(round(per_sample))
     samples = int(round(duration_s * rate_hz))
     q, dq = center.copy(), np.zeros(n)
@@ -732,7 +735,10 @@ def pinocchio_rollout(
             q_log[k // controls_per_sample], tau_log[k // controls_per_sample] = read, tau
         for i in range(steps_per_control):
             s = t + i * h
-            applied = applied + follow * (tau - applied) if k or i else tau.copy()
+            if not (k or i):
+                lagged = tau.copy()  # the arm starts at rest under its first command
+            applied = tau + (lagged - tau) * mean
+            lagged = tau + (lagged - tau) * decay
             k1q, k1v = dq, accel(s, q, dq, applied)
             k2q, k2v = dq + h / 2 * k1v, accel(s + h / 2, q + h / 2 * k1q, dq + h / 2 * k1v, applied)
             k3q, k3v = dq + h / 2 * k2v, accel(s + h / 2, q + h / 2 * k2q, dq + h / 2 * k2v, applied)
@@ -761,7 +767,10 @@ def _check_parsed(plant: Plant, parsed: Any, pin: Any) -> None:
     (armature included) and the bias torques at a few random states, to 1e-6 of their size."""
     m = plant.mj_model
     if parsed.nq != m.nq or parsed.nv != m.nv:
-        raise ValueError(f"{plant.path}: Pinocchio reads {parsed.nv} joints, MuJoCo {m.nv}")
+        raise ValueError(
+            f"{plant.path}: Pinocchio's MJCF parser reads {parsed.nq} positions and {parsed.nv} joint speeds, MuJoCo "
+            f"{m.nq} and {m.nv} (the parser takes the first body under worldbody and its subtree only)"
+        )
     d, data = mujoco.MjData(m), parsed.createData()
     rng = np.random.default_rng(0)
     for _ in range(3):
