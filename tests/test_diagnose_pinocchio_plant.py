@@ -113,3 +113,21 @@ def test_a_drives_lag_behind_a_logged_command_is_named_with_the_lead_to_declare_
     assert dg.verdict == "no_discrepancy", dg.verdict_reason
     left = dg.info["torque_lead"]
     assert abs(left["delay_s"]) < 3 * left["std_s"], left
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_three_effects_hidden_at_once_are_each_named_within_their_std(seed: int) -> None:
+    """A robot has several effects at once: a viscous friction on one joint, a Coulomb friction on another and a
+    torque-sensor gain on the third, hidden together in the Pinocchio plant, are each named as a finding of its own
+    (the gain with the rigid-body change it is confounded with listed beside it), its value within 3 std of the
+    truth, and the verdict is `explained`."""
+    hidden = [
+        Injected("viscous_friction", "pitch", 0.1),
+        Injected("coulomb_friction", "elbow", 0.1),
+        Injected("torque_gain", "yaw", 0.1),
+    ]
+    _, dg = diagnose_case("arm3", hidden, seed, generate=_generate("arm3"))
+    assert dg.verdict == "explained", dg.verdict_reason
+    for truth in hidden:
+        (f,) = [f for f in dg.findings if (f.effect, f.target) == (truth.effect, truth.joint)]
+        assert abs(f.value - truth.value) < 3 * f.std, (f.name, f.value, f.std)
