@@ -704,7 +704,7 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
             "## A plant without MuJoCo: Pinocchio's articulated-body algorithm (independent generator)",
             "",
             "Every record made by `identify.diagnose.testbed.pinocchio_rollout`: the model as Pinocchio's own MJCF "
-            "parser reads it (checked against MuJoCo's inertia and bias torques, not the harness's Pinocchio twin), "
+            "parser reads it (its inverse dynamics checked against MuJoCo's, not the harness's Pinocchio twin), "
             "integrated by a fixed-step RK4 at 4 kHz with the file's damping, frictionloss (as a Coulomb friction "
             "F tanh(dq / 0.01 rad/s), hardware's shape, not MuJoCo's soft ramp) and stiffness as plain forces; a "
             "PD loop at 1 kHz on the noisy, quantised angles with the gravity torque as feed-forward, tracking a "

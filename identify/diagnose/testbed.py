@@ -34,6 +34,7 @@ Coulomb friction, under a PD loop with gravity feed-forward tracking chirps (`pi
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -47,6 +48,8 @@ from scipy.integrate import solve_ivp
 from dynamics.errors import ModelError
 from dynamics.friction import applied_friction_parameters, kept_ramp
 from dynamics.plant import Plant, load_plant, load_spec, movable_xml
+from dynamics.sampling import random_states
+from dynamics.torque import inverse_dynamics
 from envs.dataset import Dataset
 from envs.simulate import unstable
 from identify.diagnose.authors import author_accel, author_torque, load_author_model
@@ -647,31 +650,32 @@ def pinocchio_rollout(
     and their smoothed differences, with the gravity torque of the parsed model as feed-forward, tracking per
     joint a chirp from 0.1 to `settings.max_hz` plus two sines about `settings.center`, at `settings.amplitude`,
     with `settings.kp` and `settings.kd`. Each command is held over its control period; every sample logs the
-    angles read at its control tick and the command computed from them (a lead of half a control period). Torque
-    noise `settings.sigma_tau`, read to `settings.tau_resolution`. `actuator_lag_s` > 0: the drives apply each
+    angles at its control tick and the command computed there (a lead of half a control period), as the testbed's
+    sensor reports them (`_measure`: its own encoder noise, torque noise `settings.sigma_tau` read to
+    `settings.tau_resolution`, and the `SENSOR_EFFECTS`). `actuator_lag_s` > 0: the drives apply each
     command through a first-order lag of that time constant (a current loop's), and the log holds the command.
 
     Raises:
-        ValueError: an effect it cannot hide, a model Pinocchio reads otherwise than MuJoCo compiles it (inertia
-            or bias torques that differ: `_check_parsed`), or rates that are not whole multiples.
+        ValueError: an effect it cannot hide, a model Pinocchio reads otherwise than MuJoCo compiles it (inverse
+            dynamics that differ: `_check_parsed`), or rates that are not whole multiples.
         ModelError: the integration diverged.
     """
     import pinocchio as pin  # the generator's own dependency, as SciPy is `lab_rollout`'s
 
-    bad = [e.effect for e in effects if e.effect not in PINOCCHIO_EFFECTS + _FORCE_EFFECTS + SENSOR_EFFECTS]
+    hideable = PINOCCHIO_EFFECTS + _FORCE_EFFECTS + SENSOR_EFFECTS
+    bad = [e.effect for e in effects if e.effect not in hideable]
     if bad:
-        valid = ", ".join(PINOCCHIO_EFFECTS + _FORCE_EFFECTS + SENSOR_EFFECTS)
-        raise ValueError(f"pinocchio_rollout cannot hide {bad[0]!r}; valid choices: {valid}")
+        raise ValueError(f"pinocchio_rollout cannot hide {bad[0]!r}; valid choices: {', '.join(hideable)}")
     per_control, per_sample = physics_hz / control_hz, control_hz / rate_hz
     if abs(per_control - round(per_control)) > 1e-9 or abs(per_sample - round(per_sample)) > 1e-9:
         raise ValueError(f"pinocchio_rollout: rates {physics_hz:g} / {control_hz:g} / {rate_hz:g} Hz are not multiples")
     plant = load_plant(mjcf)
-    nominal, model = pin.buildModelFromMJCF(str(plant.path)), pin.buildModelFromMJCF(str(plant.path))
+    nominal = pin.buildModelFromMJCF(str(plant.path))
     _check_parsed(plant, nominal, pin)
+    model = pin.Model(nominal)  # the plant: a copy that takes the hidden armature
     n, names = plant.nv, plant.joint_names
-    m = plant.mj_model
-    damping, friction, stiffness = m.dof_damping.copy(), m.dof_frictionloss.copy(), m.jnt_stiffness.copy()
-    springref = m.qpos_spring.copy()
+    damping, friction, stiffness = plant.damping.copy(), plant.frictionloss.copy(), plant.stiffness.copy()
+    springref = plant.springref
     for e in effects:
         j = names.index(e.joint)
         if e.effect == "viscous_friction":
@@ -700,12 +704,12 @@ def pinocchio_rollout(
     kp, kd = np.array(settings.kp), np.array(settings.kd)
     phase = rng.uniform(0, 2 * np.pi, (n, 3))
     sines = rng.uniform(0.15, 0.75 * settings.max_hz, (n, 2))
+    sweep = (settings.max_hz - 0.1) / duration_s  # [Hz/s] the chirp's rise
+    weight = np.array([0.5, 0.25, 0.25])  # of the chirp and the two sines
 
     def reference(t: float) -> tuple[np.ndarray, np.ndarray]:
-        sweep = (settings.max_hz - 0.1) / duration_s  # [Hz/s] the chirp's rise
         arg = np.column_stack([2 * np.pi * (0.1 * t + 0.5 * sweep * t * t) * np.ones(n), 2 * np.pi * sines * t]) + phase
         rate = np.column_stack([2 * np.pi * (0.1 + sweep * t) * np.ones(n), 2 * np.pi * sines])
-        weight = np.array([0.5, 0.25, 0.25])
         swing, swing_rate = (np.sin(arg) - np.sin(phase)) @ weight, (rate * np.cos(arg)) @ weight
         fade, fade_rate = (t, 1.0) if t < 1.0 else (1.0, 0.0)  # the swing grows over the first second from rest
         return center + amplitude * fade * swing, amplitude * (fade * swing_rate + fade_rate * swing)
@@ -715,7 +719,6 @@ def pinocchio_rollout(
     # step u + (y0 - u) mean (the torque the step applies; its end value would put it half a step early)
     decay = float(np.exp(-h / actuator_lag_s)) if actuator_lag_s > 0 else 0.0
     mean = actuator_lag_s / h * (1.0 - decay) if actuator_lag_s > 0 else 0.0
-    lagged = np.zeros(n)
     steps_per_control, controls_per_sample = int(round(per_control)), int(round(per_sample))
     samples = int(round(duration_s * rate_hz))
     q, dq = center.copy(), np.zeros(n)
@@ -732,11 +735,11 @@ def pinocchio_rollout(
         gravity = pin.computeGeneralizedGravity(nominal, nominal_data, read)
         tau = np.where(act, np.clip(kp * (target - read) + kd * (target_speed - speed) + gravity, -limit, limit), 0.0)
         if k % controls_per_sample == 0:
-            q_log[k // controls_per_sample], tau_log[k // controls_per_sample] = read, tau
+            q_log[k // controls_per_sample], tau_log[k // controls_per_sample] = q, tau
+        if k == 0:
+            lagged = tau.copy()  # the arm starts at rest under its first command
         for i in range(steps_per_control):
             s = t + i * h
-            if not (k or i):
-                lagged = tau.copy()  # the arm starts at rest under its first command
             applied = tau + (lagged - tau) * mean
             lagged = tau + (lagged - tau) * decay
             k1q, k1v = dq, accel(s, q, dq, applied)
@@ -747,48 +750,33 @@ def pinocchio_rollout(
             dq = dq + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
             raise ModelError(f"pinocchio_rollout {plant.name}: the integration diverged at t = {t:.3f} s")
-    q_log, tau_log = _sensed(names, effects, time, q_log, tau_log)
-    tau_log = tau_log + rng.normal(0.0, 1.0, tau_log.shape) * np.array(settings.sigma_tau)
-    tau_log = np.where(act, np.round(tau_log / settings.tau_resolution) * settings.tau_resolution, 0.0)
-    return plant, Dataset(
-        time=time,
-        q=q_log,
-        tau=tau_log,
-        joint_names=names,
-        actuated=act,
-        source=source,
-        tau_lead_s=0.5 / control_hz,
-        meta={"generator": "identify.diagnose.testbed.pinocchio_rollout", "effects": [e.__dict__ for e in effects]},
-    )
+    return plant, _measure(plant, list(effects), time, q_log, tau_log, settings, rng, source, lead_s=0.5 / control_hz)
 
 
 def _check_parsed(plant: Plant, parsed: Any, pin: Any) -> None:
-    """Refuse a model Pinocchio's MJCF parser reads otherwise than MuJoCo compiles it: the joint-space inertia
-    (armature included) and the bias torques at a few random states, to 1e-6 of their size."""
+    """Refuse a model Pinocchio's MJCF parser reads otherwise than MuJoCo compiles it: its inverse dynamics (RNEA
+    with armature, plus the file's damping and stiffness) against MuJoCo's with constraints off, at random states
+    (`dynamics.plant.check_against_mujoco` checks the harness's own Pinocchio twin so)."""
     m = plant.mj_model
     if parsed.nq != m.nq or parsed.nv != m.nv:
         raise ValueError(
             f"{plant.path}: Pinocchio's MJCF parser reads {parsed.nq} positions and {parsed.nv} joint speeds, MuJoCo "
             f"{m.nq} and {m.nv} (the parser takes the first body under worldbody and its subtree only)"
         )
-    d, data = mujoco.MjData(m), parsed.createData()
-    rng = np.random.default_rng(0)
-    for _ in range(3):
-        lo, hi = np.where(np.isfinite(plant.q_range), plant.q_range, [[-np.pi, np.pi]]).T
-        d.qpos[:], d.qvel[:] = rng.uniform(lo, hi), rng.normal(0.0, 1.0, m.nv)
-        mujoco.mj_forward(m, d)
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
-        ours = pin.crba(parsed, data, d.qpos.copy())
-        ours = np.triu(ours) + np.triu(ours, 1).T
-        bias = pin.rnea(parsed, data, d.qpos.copy(), d.qvel.copy(), np.zeros(m.nv))
-        for what, a, b in (("inertia", ours, M), ("bias torque", bias, d.qfrc_bias)):
-            if np.max(np.abs(a - b)) > 1e-6 * max(1.0, float(np.max(np.abs(b)))):
-                raise ValueError(
-                    f"{plant.path}: Pinocchio's MJCF parser reads its {what} otherwise than MuJoCo compiles it (by "
-                    f"{np.max(np.abs(a - b)):.3g}): a compiler option it does not apply (settotalmass, boundmass, "
-                    "boundinertia) or an inertia it does not read; write the inertials MuJoCo computes into the file"
-                )
+    q, dq, ddq = random_states(plant, np.random.default_rng(0), 5)
+    free = copy.deepcopy(m)
+    free.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)  # no limits, contacts or frictionloss
+    theirs = inverse_dynamics(free, q, dq, ddq)
+    data = parsed.createData()
+    ours = np.array([pin.rnea(parsed, data, *state) for state in zip(q, dq, ddq, strict=True)])
+    ours += plant.damping * dq + plant.stiffness * (q - plant.springref)
+    diff = float(np.max(np.abs(ours - theirs)))
+    if diff > 1e-6 * max(1.0, float(np.max(np.abs(theirs)))):
+        raise ValueError(
+            f"{plant.path}: Pinocchio's MJCF parser reads its inertia otherwise than MuJoCo compiles it (their inverse "
+            f"dynamics differ by {diff:.3g}): a compiler option it does not apply (settotalmass, boundmass, "
+            "boundinertia) or an inertia it does not read; write the inertials MuJoCo computes into the file"
+        )
 
 
 def hidden_effect_cases() -> list[tuple[str, list[Injected], str]]:
@@ -1012,11 +1000,7 @@ def pinocchio_table(robots: str | Path, folder: str | Path, seeds: range = range
         generate = partial(pinocchio_rollout, path, settings=SYSTEMS.get(system) or ARMS[system])
         for effects, expect in pinocchio_cases(system):
             runs = [diagnose_case(system, effects, seed, generate=generate) for seed in seeds]
-            row = _seeds_row(system, effects, runs, seeds)
-            row["expect"] = expect
-            row["ok"] = _ok(expect, effects[0] if effects else None, runs[0][1], runs[0][0])
-            row["ok_seeds"] = [_ok(expect, effects[0] if effects else None, dg, plant) for plant, dg in runs]
-            rows.append(row)
+            rows.append(_seeds_row(system, effects, runs, seeds, expect))
     return rows
 
 
@@ -1105,10 +1089,13 @@ def servo_log_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _seeds_row(system: str, effects: list[Injected], runs: list[tuple[Plant, Any]], seeds: range) -> dict[str, Any]:
+def _seeds_row(
+    system: str, effects: list[Injected], runs: list[tuple[Plant, Any]], seeds: range, expect: str | None = None
+) -> dict[str, Any]:
     """The row of the first seed's (plant, diagnosis), with in `z_seeds` the (value - truth) / std of every seed
-    where the hidden effect is named first (None where it is not) and in `ok_seeds` whether each is as expected."""
-    row = _row(system, effects, "named" if effects else "clean", *runs[0])
+    where the hidden effect is named first (None where it is not) and in `ok_seeds` whether each is as `expect`ed
+    (None: `named`, or `clean` without effects)."""
+    row = _row(system, effects, expect or ("named" if effects else "clean"), *runs[0])
     truth = effects[0] if effects else None
     row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
     row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
