@@ -131,3 +131,41 @@ def test_three_effects_hidden_at_once_are_each_named_within_their_std(seed: int)
     for truth in hidden:
         (f,) = [f for f in dg.findings if (f.effect, f.target) == (truth.effect, truth.joint)]
         assert abs(f.value - truth.value) < 3 * f.std, (f.name, f.value, f.std)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (SHARED_ROBOTS / "xarm7_nohand.xml").is_file(), reason=f"needs the xArm7 of {SHARED_ROBOTS}")
+def test_a_nominal_friction_ramp_wider_than_the_robots_friction_is_narrowed(tmp_path: Path) -> None:
+    """The Menagerie xArm7's frictionloss of 1 N m sits at MuJoCo's default solver parameters: on its light last
+    joint MuJoCo applies it as a ramp 7.7 rad/s wide, a damper over the whole motion. A drive's friction is sharp:
+    here the plant's is 1 N m tanh(dq / 0.05 rad/s) (integrated at 40 kHz, which that stiff friction on a
+    1e-4 kg m^2 link asks for). Without `friction_ramp` no candidate changes the shape of a nominal friction: on
+    these records joint 7 got a Stribeck friction of 0.65 N m and a viscous one of 1.09 N m s/rad, the file kept the
+    wide ramp, and joint 7's held-out torque RMS fell from 0.848 to 0.169 N m. Now the joint's friction is named as
+    replaced by one in a narrower shape (1.003 +- 0.021 N m), the file written applies that friction (MuJoCo's
+    inverse dynamics follows the declared ramp), and the RMS falls to 0.059 N m. A joint whose file is not changed
+    keeps its nominal frictionloss, and so does one whose narrower friction the final fit could not make agree with
+    the column it was fitted by (`diagnosis._unsettled`)."""
+    path = torque_driven(SHARED_ROBOTS / "xarm7_nohand.xml", tmp_path)
+    generate = partial(pinocchio_rollout, path, settings=ARMS["xarm7_nohand"], friction_width=0.05, physics_hz=40000.0)
+    _, dg = diagnose_case("xarm7_nohand", [], 0, generate=generate)
+    first = dg.findings[0]
+    assert (first.effect, first.target) == ("friction_ramp", "joint7"), [f.name for f in dg.findings]
+    assert abs(first.value - 1.0) < 3 * first.std, (first.value, first.std)
+    written = dg.frictionloss_mapping["joint7"]
+    assert abs(written["frictionloss"] - first.value) < 1e-4 * first.value, written
+    assert 0 < written["declared_speed"] < 0.11 and written["relative"] < 1e-6, written
+    before, after = (dg.models[m]["torque_rms"]["joint7"] for m in ("nominal", "calibrated"))
+    assert after < before / 10, (before, after)
+    named = {f.target for f in dg.findings}
+    for joint, mapping in dg.frictionloss_mapping.items():
+        if joint not in named:  # the nominal frictionloss as it was
+            assert mapping["frictionloss"] == 1.0, (joint, mapping)
+    # a narrower friction whose column found no level it agrees with (joint 5's 0.03 rad/s ramp on these records)
+    # is not named, and its joint's file keeps the nominal friction in its own ramp
+    unsettled = [n.split("@")[0].split(":")[1] for n in dg.notes if "found no value it agrees with" in n]
+    assert unsettled, dg.notes
+    for joint in unsettled:
+        assert ("friction_ramp", joint) not in {(f.effect, f.target) for f in dg.findings}
+        mapping = dg.frictionloss_mapping[joint]
+        assert mapping["frictionloss"] == 1.0 and mapping["declared_speed"] > 0.1, (joint, mapping)

@@ -11,6 +11,9 @@ Mapping (what each finding becomes in `<system>_calibrated.xml`):
                                    `mujoco` (`candidates.SOFT_FRICTION`) is that default shape, fitted as
                                    such: the frictionloss alone, the joint's solver parameters left as they are
     smooth_coulomb_friction        the same with the fitted ramp width vt (and the lead stability asks for);
+    friction_ramp                  the fitted Fc in place of the nominal frictionloss, in the narrower shape
+                                   found (ideal as above, or the ramp of width vt), whatever the joint's own
+                                   solver parameters were
                                    `frictionloss_mapping` measures how closely MuJoCo's inverse dynamics follows
                                    the declared shape along the validation motion
     joint_stiffness                joint `stiffness`, `springref`
@@ -70,7 +73,7 @@ from dynamics.plant import Plant, load_spec, movable_xml, own_body_parameters
 from dynamics.regressor import rigid_body_regressor
 from dynamics.sampling import random_states
 from dynamics.torque import inverse_dynamics, joint_torque
-from identify.diagnose.candidates import SOFT_FRICTION, rotor_chain
+from identify.diagnose.candidates import IDEAL, SOFT_FRICTION, rotor_chain
 from identify.diagnose.select import Step
 from identify.diagnose.statistics import LinearFit
 
@@ -113,6 +116,9 @@ class Extension:
             [rad/s]; 0: ideal Coulomb. `calibrated_xml` replaces it by the width it writes.
         soft_friction: (nv,) True where the fitted Coulomb friction is MuJoCo's own frictionloss at the joint's
             solver parameters (`candidates.SOFT_FRICTION`): written without solreffriction / solimpfriction.
+        narrowed: (nv,) True where the nominal frictionloss was found to act in a narrower shape than the ramp
+            its solver parameters make (`friction_ramp`): written in that shape (`friction_speed`; 0: ideal),
+            not in the joint's own ramp, even where its level is unchanged.
     """
 
     armature: np.ndarray
@@ -130,12 +136,15 @@ class Extension:
     custom: list[tuple[str, int, tuple[float, ...]]] = field(default_factory=list)
     friction_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
     soft_friction: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    narrowed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self) -> None:
         if self.friction_speed.size == 0:  # no shape given: every joint's friction ideal
             object.__setattr__(self, "friction_speed", np.zeros(len(self.armature)))
         if self.soft_friction.size == 0:
             object.__setattr__(self, "soft_friction", np.zeros(len(self.armature), bool))
+        if self.narrowed.size == 0:
+            object.__setattr__(self, "narrowed", np.zeros(len(self.armature), bool))
 
     @classmethod
     def none(cls, plant: Plant) -> Extension:
@@ -211,6 +220,13 @@ def extension_from_fit(
         if c.effect == "smooth_coulomb_friction":
             ext.frictionloss[j] += full[0]
             ext.friction_speed[j] = float(c.variant)
+            continue
+        if c.effect == "friction_ramp":  # the joint's friction in a narrower shape, at the level fitted
+            if full[0] <= 0:
+                continue  # the secant's limit at no friction: no change of the nominal one
+            ext.frictionloss[j] += full[0] - plant.frictionloss[j]
+            ext.friction_speed[j] = 0.0 if c.variant == IDEAL else float(c.variant)
+            ext.narrowed[j] = True
             continue
         if c.effect == "coulomb_friction" and c.variant == SOFT_FRICTION:
             ext.frictionloss[j] += full[0]
@@ -603,7 +619,7 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
     the fit left as it was, read as the ramp MuJoCo applies (`dynamics.plant.with_applied_friction`), keeps that
     ramp where a fitted inertia moves its `dof_invweight0` (with MuJoCo's default solver parameters the ramp's
     width goes with it)."""
-    changed = [j for j in range(plant.nv) if ext.frictionloss[j] != 0 or ext.friction_speed[j] > 0]
+    changed = [j for j in range(plant.nv) if ext.frictionloss[j] != 0 or ext.friction_speed[j] > 0 or ext.narrowed[j]]
     kept = [j for j in range(plant.nv) if j not in changed and plant.friction_speed[j] > 0]
     if not changed and not kept:
         return
@@ -642,7 +658,7 @@ def _write_friction_shapes(spec: mujoco.MjSpec, plant: Plant, ext: Extension) ->
                     fc, ext.friction_speed[j], float(soft_lead[j]), invweight, step
                 )
             continue
-        if ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0:  # the joint's own ramp, its lead as well
+        if ext.friction_speed[j] <= 0 and plant.friction_speed[j] > 0 and not ext.narrowed[j]:  # its own ramp
             solref, solimp, ext.friction_speed[j] = kept_ramp(
                 fc, plant.friction_speed[j], plant.friction_lead[j], invweight, step
             )

@@ -26,6 +26,10 @@ times unknown coefficients (one group of columns per effect and joint or body):
     smooth_coulomb_   sat(dq_j / vt) (a ramp of width vt)      Fc (N m)                   joint `frictionloss` with
       friction                                                                            solref/solimpfriction
                                                                                           making it that ramp
+    friction_ramp     the change from the nominal frictionloss Fc (N m)                   joint `frictionloss` Fc
+                      F0 in its shape to Fc in a narrower one                             with solref/solimpfriction
+                      (ideal sign(dq_j), or a ramp), per unit                             making it that shape
+                      Fc: shape - (F0 / Fc) nominal shape
     load_friction     |tau_nominal_j| sign(dq_j) (actuated)    mu (1)                     custom numeric [mu]
     backlash          -d tau_nominal/d q_j sign(dq_j)          lost motion b (rad)        custom numeric [b]
     joint_elasticity  -d tau_nominal/d q_j tau_nominal_j       stiffness k (N m/rad)      custom numeric [k]
@@ -39,12 +43,14 @@ the training residual shows (`cogging_harmonic` scans `COGGING_HARMONICS`), the 
 small grid (each a candidate of its own, `variant`).
 
 A joint has one frictionloss, so one friction shape: `coulomb_friction` (ideal, written as sharp as the model's
-step allows) and `smooth_coulomb_friction` (a ramp of width vt) exclude each other on a joint
-(`FRICTIONLOSS_EFFECTS`). Where the nominal MJCF already has a frictionloss F0 on the joint, the written ramp
-carries F0 too; that change of F0's shape, F0 (sat(dq / vt) - its nominal shape), nonzero only below vt, is left
-out of the fit. So a ramp is tried only where the nominal shape is no wider than vt: under a wider one (MuJoCo's
-default ramp is as wide as the joint's inverse inertia, 7.7 rad/s on the xArm7's last joint) the file written
-would hold a friction the fit never saw (1.2 N m at 0.2 rad/s there, for a fitted 0.23).
+step allows, or a change of the level in the joint's own shape), `smooth_coulomb_friction` (a ramp of width vt)
+and `friction_ramp` exclude each other on a joint (`FRICTIONLOSS_EFFECTS`). Where the nominal MJCF already has a
+frictionloss F0 on the joint, the written ramp carries F0 too; that change of F0's shape, F0 (sat(dq / vt) - its
+nominal shape), nonzero only below vt, is left out of a ramp's fit. So a ramp is tried only where the nominal
+shape is no wider than vt: under a wider one (MuJoCo's default ramp is as wide as the joint's inverse inertia,
+7.7 rad/s on the xArm7's last joint) the file written would hold a friction the fit never saw (1.2 N m at 0.2
+rad/s there, for a fitted 0.23). There `friction_ramp` fits that change of shape itself (`_friction_ramps`): the
+joint's friction in a narrower shape (the ideal one, or a ramp of the grid's widths) in place of F0 in its own.
 
 `rotor_coupling` is the rotor of the motor that drives joint j, its stator on the parent link: the rotor turns
 at (the parent's angular velocity + gr dq_j), so its kinetic energy 1/2 Ir (w_parent + gr dq_j)^2 adds the
@@ -78,6 +84,7 @@ from identify.derivatives import States
 __all__ = [
     "CANDIDATE_EFFECTS",
     "FRICTIONLOSS_EFFECTS",
+    "IDEAL",
     "SHARP_EFFECTS",
     "Candidate",
     "Signals",
@@ -361,7 +368,8 @@ MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
 SOFT_FRICTION = "mujoco"  # the variant of `coulomb_friction` shaped as MuJoCo's own frictionloss constraint
 SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # ramp widths of a smooth Coulomb friction tried [rad/s]
-FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction")  # shapes of one joint frictionloss
+FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction", "friction_ramp")  # shapes of one frictionloss
+IDEAL = "ideal"  # the variant of `friction_ramp` that makes the nominal frictionloss the ideal Coulomb friction
 # forces the plant feels that change within a few ms as the velocity crosses zero: the residual holds them only
 # low-passed at the state filter's cut-off (through the filtered acceleration), so their columns go through it too
 SHARP_EFFECTS = (*FRICTIONLOSS_EFFECTS, "stribeck_friction", "load_friction", "backlash")
@@ -462,6 +470,95 @@ def _shape_friction(plant: Plant) -> list[Candidate]:
                 )
             )
     return out
+
+
+def _friction_ramps(plant: Plant, train: Signals | None) -> list[Candidate]:
+    """A nominal frictionloss F0 whose ramp (as MuJoCo applies it at the joint's solver parameters: at its defaults
+    as wide as the joint's inverse inertia, 7.7 rad/s on the Menagerie xArm7's last joint) is wider than the
+    robot's friction: the joint's friction in a narrower shape, the ideal sign(dq) or a ramp sat(dq / vt) of a
+    width of `SMOOTH_COULOMB_SPEEDS` narrower than the nominal one, at a level Fc. No other column holds that
+    change of F0's shape (a level change keeps the nominal shape, and a ramp is not tried under a wider nominal
+    one). The change from F0 in its nominal shape to Fc in the narrower one is a secant in Fc: its column, made at
+    Fc = m, is shape - (F0 / m) nominal shape, exact at Fc = m, no change at Fc = 0; made first at the Fc the
+    training residual gives (`_ramp_level`: its fixed point there, so that the selection scores the friction
+    replaced, not a share of it beside the nominal one), then again at the value the final fit gives until the
+    two agree (`Candidate.remake`), so that the file written, Fc with the solreffriction and solimpfriction of that
+    shape (`calibrate`), applies the friction the fit used. Without training signals, none."""
+    if train is None:
+        return []
+    residual = train.residual  # low-passed on every access: once for every joint
+    out = []
+    for j in range(plant.nv):
+        if plant.frictionloss[j] > 0 and plant.friction_speed[j] > 0:  # one not read as the ideal term already
+            widths = [f"{vt:g}" for vt in SMOOTH_COULOMB_SPEEDS if vt < plant.friction_speed[j]]
+            for variant in (IDEAL, *widths):
+                level = _ramp_level(plant, train, residual, j, variant)
+                if level is not None:
+                    out.append(_ramp_candidate(plant, j, variant, level))
+    return out
+
+
+def _narrower_shape(dq: np.ndarray, variant: str) -> np.ndarray:
+    """The shape of `friction_ramp`'s `variant`: sign(dq) (`IDEAL`) or sat(dq / vt)."""
+    return np.sign(dq) if variant == IDEAL else np.clip(dq / float(variant), -1.0, 1.0)  # type: ignore[no-any-return]
+
+
+def _ramp_level(plant: Plant, train: Signals, residual: np.ndarray, j: int, variant: str) -> float | None:
+    """The level Fc of joint j's friction in the narrower shape `variant` that the training residual gives with
+    the nominal F0 taken out whole (r + F0 nominal shape ~ Fc shape), the joint's viscous friction and armature
+    beside it, as the fits see the columns (filtered); None where the joint's torque is not measured, where the
+    shape does not differ from the nominal one on these rows, or where the level is not positive."""
+    rows = train.used[:, j] if train.used is not None else np.ones(train.n_samples, bool)
+    if not np.any(rows) or not train.actuated[j]:
+        return None
+
+    def seen(x: np.ndarray, sharp: bool = False) -> np.ndarray:  # joint j's column as the fits see it
+        full = np.zeros(train.dq.shape)
+        full[:, j] = x
+        return train.in_band(train.through_states(full) if sharp else full)[rows, j]  # type: ignore[no-any-return]
+
+    dq, ddq = train.dq[:, j], train.ddq[:, j]
+    nominal = friction_shape(dq[:, None], ddq[:, None], plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1])
+    shape, held = seen(_narrower_shape(dq, variant), sharp=True), seen(nominal[:, 0], sharp=True)
+    if not np.any(np.abs(shape - held) > 1e-9):
+        return None
+    cols = np.column_stack([shape, seen(dq), seen(ddq)])
+    level = float(np.linalg.lstsq(cols, residual[rows, j] + plant.frictionloss[j] * held, rcond=None)[0][0])
+    return level if level > 0 else None
+
+
+def _ramp_candidate(plant: Plant, j: int, variant: str, level: float) -> Candidate:
+    """Joint j's friction replaced by one of level Fc in the narrower shape `variant` (`_friction_ramps`), its
+    column the secant from the nominal friction to Fc = `level` [N m]."""
+    f0 = float(plant.frictionloss[j])
+    speed, lead = plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1]
+
+    def column(s: Signals) -> np.ndarray:
+        nominal = friction_shape(s.dq[:, j : j + 1], s.ddq[:, j : j + 1], speed, lead)[:, 0]
+        return _narrower_shape(s.dq[:, j], variant) - (f0 / level) * nominal  # type: ignore[no-any-return]
+
+    unit = "rad/s" if plant.hinge[j] else "m/s"
+    narrower = "the ideal Fc sign(dq)" if variant == IDEAL else f"a ramp Fc sat(dq/{variant}) ({variant} {unit} wide)"
+    note = (
+        f"the joint's friction acts as {narrower}, not as the nominal frictionloss {f0:g} in the ramp "
+        f"{plant.friction_speed[j]:.3g} {unit} wide that the joint's solver parameters make of it (value: Fc); "
+        "written as the joint's frictionloss Fc with the solreffriction and solimpfriction of that shape "
+        "(dynamics.friction)"
+    )
+    return Candidate(
+        "friction_ramp",
+        plant.joint_names[j],
+        "N m",
+        "joint frictionloss, solreffriction and solimpfriction",
+        (f"Fcr{j + 1}",),
+        _own_row(plant.nv, j, column),
+        _first,
+        ((0.0, np.inf),),  # a friction
+        note,
+        variant,
+        made_at=level,
+        remake=partial(_ramp_candidate, plant, j, variant),
+    )
 
 
 def _soft_friction(plant: Plant, train: Signals | None) -> list[Candidate]:
@@ -893,6 +990,7 @@ CANDIDATE_EFFECTS: dict[str, _Factory] = {
         *(c for c in _joint_effects(p) if c.effect == "coulomb_friction"),
         *_soft_friction(p, s),
     ],
+    "friction_ramp": lambda p, rng, s: _friction_ramps(p, s),
     "joint_elasticity": lambda p, rng, s: [c for c in _compliance(p) if c.effect == "joint_elasticity"],
     "joint_offset": lambda p, rng, s: [_joint_offset(p, j) for j in range(p.nv)],
     "joint_stiffness": lambda p, rng, s: [_stiffness(p, j) for j in range(p.nv)],

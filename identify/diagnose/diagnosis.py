@@ -92,6 +92,7 @@ DEFAULT_EFFECTS = (
     "backlash",
     "cogging",
     "coulomb_friction",
+    "friction_ramp",
     "joint_elasticity",
     "joint_offset",
     "joint_stiffness",
@@ -812,9 +813,11 @@ def diagnose(
     steps, X = select_effects(pool, s_tr, weights, selection, nuisance=nuisance)
     z_floor = selection.min_z_records if len(tr) > 1 else selection.min_z  # the most lenient the selection asks
     sliding = _sliding_rows(s_tr, steps, names)
+    chosen = steps
     X, fit, left_tr, steps = _final_fit(
         plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None
     )
+    unsettled = [st.candidate.key for st in chosen if st.candidate.key not in {s.candidate.key for s in steps}]
     lead = _torque_lead(plant, steps, X, s_tr, weights, m, sliding)
     fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
     sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
@@ -1057,6 +1060,11 @@ def diagnose(
             for f in demoted
         ]
         + [
+            f"{key}: chosen by the selection, but its column, made at its own value, found no value it agrees with "
+            "beside the effects chosen with it (the friction the file would hold is not the one fitted): not named"
+            for key in unsettled
+        ]
+        + [
             f"{f.name}: chosen by the selection, but fitted with the effects chosen after it, it ends at its "
             f"{f.at_bound} bound, its value of no effect ({f.value:g} {f.unit}): not named"
             for f in pinned
@@ -1258,7 +1266,9 @@ def _separation(a: str, b: str, a_name: str = "", b_name: str = "") -> str:
         )
     if "time_delay" in pair:
         return "faster excitation: a delay's torque grows with frequency (as d tau/dt), the alternative's does not"
-    if pair & {"coulomb_friction", "smooth_coulomb_friction", "stribeck_friction", "backlash", "load_friction"}:
+    if pair & {"coulomb_friction", "smooth_coulomb_friction", "friction_ramp", "stribeck_friction", "backlash"} or (
+        "load_friction" in pair
+    ):
         return "dwell at low speed and reverse slowly, at several loads: friction shapes differ near zero speed"
     return (
         f"a motion on which the columns of {a_name or a} and {b_name or b} differ (they are nearly parallel on "
@@ -1643,7 +1653,8 @@ _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle wit
 STOPPED_SHARE = 0.25  # a joint at its range limit on more than this share of a record is not checked for its torque
 SLIDING_FRACTION = 0.1  # below this share of a joint's RMS speed in a record, its Coulomb friction is not fitted
 _SIGN_FRICTION = frozenset({"coulomb_friction", "load_friction"})  # friction laws of sign(dq)
-_LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "stribeck_friction", "backlash"})  # told apart below it
+# told apart below it (a friction in a narrower shape than the nominal ramp differs from it there only)
+_LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "friction_ramp", "stribeck_friction", "backlash"})
 
 
 def _slow_rows(s: Signals, joints: np.ndarray, ramp: np.ndarray | None = None) -> np.ndarray:
@@ -1885,9 +1896,17 @@ def _final_fit(
             break
     start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
     X, steps = X.copy(), list(steps)  # self-dependent columns are made again in place (`_remade_at_fit`)
+    tried: dict[int, tuple[float, float]] = {}  # each one's last (value made at, value fitted)
     for _ in range(_REMAKE_ITERATIONS):
-        if not _remade_at_fit(s, steps, X, fit.coef, start):
+        if not _remade_at_fit(s, steps, X, fit.coef, start, tried):
             break
+        fit = solve(X, residual, weights, lo, hi)
+    else:  # one found no fixed point: the file would not hold what the fit used, so it is not an effect found
+        keep = [i for i, st in enumerate(steps) if not _unsettled(st.candidate, float(fit.coef[int(start[i])]))]
+        columns = [np.arange(n_nuisance)] + [np.arange(start[i], start[i] + len(steps[i].kept)) for i in keep]
+        X, steps = X[:, :, np.concatenate(columns)], [steps[i] for i in keep]
+        lo, hi = _step_bounds(steps, n_nuisance)
+        start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
         fit = solve(X, residual, weights, lo, hi)
     records = np.unique(s.record)
     # (column, joint, record index or None for an offset of every record)
@@ -1929,7 +1948,7 @@ def _final_fit(
         measured = s.in_band(s.tau - nominal)
         fit = solve(X, measured, weights, lo_it, hi_it)
         # a self-dependent column follows its value here too (a gain or an offset moves it after the pass above)
-        remade = _remade_at_fit(s, steps, X, fit.coef, start)
+        remade = _remade_at_fit(s, steps, X, fit.coef, start, tried)
         if not remade and np.allclose(fit.coef, previous, rtol=1e-8, atol=1e-12):
             break
     left = measured - np.einsum("knp,p->kn", X, fit.coef)
@@ -1940,13 +1959,38 @@ def _final_fit(
 
 
 _REMAKE_TOL = 1e-6  # relative agreement of a self-dependent column's value and the value it was made at
+_SETTLED_TOL = 1e-3  # ... within which, after `_REMAKE_ITERATIONS`, it has settled
+
+
+def _unsettled(cand: Candidate, value: float) -> bool:
+    """Whether a self-dependent candidate's value fitted is still off the value its column was made at
+    (`_SETTLED_TOL`), other than at no change."""
+    if cand.remake is None or cand.made_at is None or abs(value) < 1e-9:
+        return False
+    return abs(value - cand.made_at) > _SETTLED_TOL * max(abs(cand.made_at), abs(value))
+
+
 _REMAKE_ITERATIONS = 20
 
 
-def _remade_at_fit(s: Signals, steps: list[Step], X: np.ndarray, coef: np.ndarray, start: np.ndarray) -> bool:
+def _remade_at_fit(
+    s: Signals,
+    steps: list[Step],
+    X: np.ndarray,
+    coef: np.ndarray,
+    start: np.ndarray,
+    tried: dict[int, tuple[float, float]],
+) -> bool:
     """The columns of candidates made at a value of their own coefficient (`Candidate.made_at`) made again, in
-    place in `X` (N, nv, p) and `steps`, at the value `coef` gives them where the two differ (`_REMAKE_TOL`);
-    `start`: each step's first column. Returns whether any was made again (the caller refits, `_final_fit`)."""
+    place in `X` (N, nv, p) and `steps`, where the value `coef` gives them differs from it (`_REMAKE_TOL`);
+    `start`: each step's first column. Returns whether any was made again (the caller refits, `_final_fit`).
+
+    The value fitted c is a function of the value made at m, and the one wanted is its fixed point c(m) = m.
+    Made again at c, it settles where c(m) is flat (MuJoCo's friction secant); where a column made a little off
+    moves c far (a friction in a narrower shape, `friction_ramp`, whose column holds its nominal shape times F0 /
+    m: off m, that part outweighs the difference of shapes), that walks away, to a fit of no friction. So from
+    the second time on the column is made at the secant's root of c(m) - m through the last two (m, c)
+    (`tried`, per step), within the candidate's bounds."""
     moved = False
     for i, st in enumerate(steps):
         cand = st.candidate
@@ -1957,7 +2001,16 @@ def _remade_at_fit(s: Signals, steps: list[Step], X: np.ndarray, coef: np.ndarra
         scale = max(abs(cand.made_at), abs(value), 1e-9)
         if abs(value - cand.made_at) <= _REMAKE_TOL * scale or abs(value) < 1e-9:
             continue  # agreed, or no change (the secant's limit: the column it has is as good)
-        cand = cand.remake(value)
+        at = value
+        if i in tried:
+            m_last, c_last = tried[i]
+            g, g_last = value - cand.made_at, c_last - m_last
+            if g != g_last:
+                root = cand.made_at - g * (cand.made_at - m_last) / (g - g_last)
+                if np.isfinite(root) and abs(root) >= 1e-9 and cand.lower[0] < root < cand.upper[0]:
+                    at = float(root)
+        tried[i] = (cand.made_at, value)
+        cand = cand.remake(at)
         steps[i] = dataclasses.replace(st, candidate=cand)
         X[:, :, col] = s.columns(cand)[:, :, 0]
         moved = True

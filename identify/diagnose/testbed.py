@@ -639,12 +639,14 @@ def pinocchio_rollout(
     control_hz: float = 1000.0,
     physics_hz: float = 4000.0,
     actuator_lag_s: float = 0.0,
+    friction_width: float = PINOCCHIO_FRICTION_WIDTH,
     source: str = "pinocchio_rollout",
 ) -> tuple[Plant, Dataset]:
     """A plant that owes nothing to MuJoCo: the model as Pinocchio's own MJCF parser reads it (not the harness's
     Pinocchio twin of the compiled model), integrated by a fixed-step RK4 of Pinocchio's articulated-body
     algorithm at `physics_hz`, with the file's joint damping, frictionloss (a Coulomb friction F tanh(dq /
-    `PINOCCHIO_FRICTION_WIDTH`), as hardware has it, not MuJoCo's soft ramp) and stiffness as plain forces.
+    `friction_width`), as hardware has it, not MuJoCo's soft ramp; a light joint's sharp friction asks for a
+    fine step) and stiffness as plain forces.
 
     Its controller is not the testbed's either: a PD loop at `control_hz` on the measured (noisy, quantised) angles
     and their smoothed differences, with the gravity torque of the parsed model as feed-forward, tracking per
@@ -693,7 +695,7 @@ def pinocchio_rollout(
     def accel(t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
         passive = (
             -damping * dq
-            - friction * np.tanh(dq / PINOCCHIO_FRICTION_WIDTH)
+            - friction * np.tanh(dq / friction_width)
             - stiffness * (q - springref)
             + _applied_forces(forced, names, t, q, dq)
         )
@@ -983,7 +985,9 @@ def pinocchio_cases(arm: str) -> list[tuple[list[Injected], str]]:
 
 
 # the Menagerie arms of `pinocchio_table`: the xArm7 is left out, its frictionloss at MuJoCo's default solver
-# parameters is a ramp 7.7 rad/s wide on its last joint, which a plant with hardware's friction does not have
+# parameters is a ramp 7.7 rad/s wide on its last joint, which a plant with hardware's friction does not have, and
+# that friction sharp on its light last link needs a 40 kHz step (its own test,
+# `tests/test_diagnose_pinocchio_plant.py`: the diagnosis narrows that ramp, `friction_ramp`)
 PINOCCHIO_ARMS = ("ur5e", "panda_nohand", "gen3")
 
 
