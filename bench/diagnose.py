@@ -709,9 +709,11 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
             "F tanh(dq / 0.01 rad/s), hardware's shape, not MuJoCo's soft ramp) and stiffness as plain forces; a "
             "PD loop at 1 kHz on the noisy, quantised angles with the gravity torque as feed-forward, tracking a "
             "chirp and two sines per joint; 500 Hz logs of the angles and the held commands. The built-in systems "
-            "and three Menagerie arms driven by torque (`PINOCCHIO_ARMS`: the xArm7 is left out, its frictionloss "
-            "at MuJoCo's default solver parameters is a ramp 7.7 rad/s wide on its last joint, which a plant with "
-            "hardware's friction does not have). The table is seed 0, the closing line counts seeds 0-3.",
+            "and three Menagerie arms driven by torque (`PINOCCHIO_ARMS`). Last, the xArm7 clean, with hardware's "
+            "friction 1 N m tanh(dq / 0.05) on every joint at a 40 kHz step (its light last link asks for it): its "
+            "MJCF's frictionloss, a ramp 7.7 rad/s wide on joint 7 at MuJoCo's default solver parameters, is the "
+            "discrepancy, to be named as that joint's friction in a narrower shape (`friction_ramp`) at 1 N m. The "
+            "table is seed 0, the closing line counts seeds 0-3.",
             "",
             hidden_markdown(result["pinocchio"]),
             "",

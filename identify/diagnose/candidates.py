@@ -317,6 +317,30 @@ class Candidate:
         key = f"{self.effect}:{self.target}" if self.target else self.effect
         return f"{key}@{self.variant}" if self.variant else key
 
+    def agrees(self, value: float, tol: float) -> bool:
+        """Whether a self-dependent column (`made_at`) fitted at `value` agrees with the value it was made at (to
+        `tol` of the larger), or is no change (the secant's limit: the column it has is as good); True for
+        every other candidate."""
+        if self.made_at is None or abs(value) < 1e-9:
+            return True
+        return abs(value - self.made_at) <= tol * max(abs(self.made_at), abs(value))
+
+    def next_made_at(self, value: float, last: tuple[float, float] | None) -> float:
+        """Where a self-dependent column fitted at `value` is made again: the value fitted c is a function of the
+        value made at m, and the one wanted is its fixed point c(m) = m. Made again at c, it settles where c(m)
+        is flat (MuJoCo's friction secant); where a column made a little off moves c far (`friction_ramp`,
+        whose column holds the nominal shape times F0 / m), that walks away. So with `last`, the (made at,
+        fitted) before, it is made at the secant's root of c(m) - m through the two, where that lies within the
+        bounds; at `value` otherwise."""
+        if last is None or self.made_at is None:
+            return value
+        g, g_last = value - self.made_at, last[1] - last[0]
+        if g == g_last:
+            return value
+        root = self.made_at - g * (self.made_at - last[0]) / (g - g_last)
+        inside = np.isfinite(root) and abs(root) >= 1e-9 and self.lower[0] < root < self.upper[0]
+        return float(root) if inside else value
+
     @property
     def lower(self) -> np.ndarray:
         """(k,) lower bounds of the coefficients."""
@@ -372,7 +396,8 @@ FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction", "friction
 IDEAL = "ideal"  # the variant of `friction_ramp` that makes the nominal frictionloss the ideal Coulomb friction
 # forces the plant feels that change within a few ms as the velocity crosses zero: the residual holds them only
 # low-passed at the state filter's cut-off (through the filtered acceleration), so their columns go through it too
-SHARP_EFFECTS = (*FRICTIONLOSS_EFFECTS, "stribeck_friction", "load_friction", "backlash")
+# (`friction_ramp` filters its own: its nominal part is the nominal model's, made from the filtered states)
+SHARP_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction", "stribeck_friction", "load_friction", "backlash")
 # harmonics n of sin(n q) scanned for position-periodic torque [cycles per revolution]: 2 to 40 can be named, and
 # 40.5 is scanned so that a period shorter than the shortest named shows as such (`cogging_harmonic`)
 COGGING_HARMONICS = np.arange(2.0, 41.0, 0.5)
@@ -519,7 +544,7 @@ def _ramp_level(plant: Plant, train: Signals, residual: np.ndarray, j: int, vari
 
     dq, ddq = train.dq[:, j], train.ddq[:, j]
     nominal = friction_shape(dq[:, None], ddq[:, None], plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1])
-    shape, held = seen(_narrower_shape(dq, variant), sharp=True), seen(nominal[:, 0], sharp=True)
+    shape, held = seen(_narrower_shape(dq, variant), sharp=True), seen(nominal[:, 0])
     if not np.any(np.abs(shape - held) > 1e-9):
         return None
     cols = np.column_stack([shape, seen(dq), seen(ddq)])
@@ -533,9 +558,11 @@ def _ramp_candidate(plant: Plant, j: int, variant: str, level: float) -> Candida
     f0 = float(plant.frictionloss[j])
     speed, lead = plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1]
 
-    def column(s: Signals) -> np.ndarray:
+    def column(s: Signals) -> np.ndarray:  # the plant's friction as the residual holds it, less the nominal's
+        shape = np.zeros(s.dq.shape)
+        shape[:, j] = _narrower_shape(s.dq[:, j], variant)
         nominal = friction_shape(s.dq[:, j : j + 1], s.ddq[:, j : j + 1], speed, lead)[:, 0]
-        return _narrower_shape(s.dq[:, j], variant) - (f0 / level) * nominal  # type: ignore[no-any-return]
+        return s.through_states(shape)[:, j] - (f0 / level) * nominal  # type: ignore[no-any-return]
 
     unit = "rad/s" if plant.hinge[j] else "m/s"
     narrower = "the ideal Fc sign(dq)" if variant == IDEAL else f"a ramp Fc sat(dq/{variant}) ({variant} {unit} wide)"

@@ -64,7 +64,15 @@ from identify.diagnose.residuals import (
     residual_signature,
     whiteness,
 )
-from identify.diagnose.select import SelectionOptions, Step, _flat, _span_free, fit_columns, select_effects
+from identify.diagnose.select import (
+    SETTLED_TOL,
+    SelectionOptions,
+    Step,
+    _flat,
+    _span_free,
+    fit_columns,
+    select_effects,
+)
 from identify.diagnose.simulation_error import (
     SimulationError,
     Stepper,
@@ -1902,7 +1910,7 @@ def _final_fit(
             break
         fit = solve(X, residual, weights, lo, hi)
     else:  # one found no fixed point: the file would not hold what the fit used, so it is not an effect found
-        keep = [i for i, st in enumerate(steps) if not _unsettled(st.candidate, float(fit.coef[int(start[i])]))]
+        keep = [i for i, st in enumerate(steps) if st.candidate.agrees(float(fit.coef[int(start[i])]), SETTLED_TOL)]
         columns = [np.arange(n_nuisance)] + [np.arange(start[i], start[i] + len(steps[i].kept)) for i in keep]
         X, steps = X[:, :, np.concatenate(columns)], [steps[i] for i in keep]
         lo, hi = _step_bounds(steps, n_nuisance)
@@ -1959,15 +1967,6 @@ def _final_fit(
 
 
 _REMAKE_TOL = 1e-6  # relative agreement of a self-dependent column's value and the value it was made at
-_SETTLED_TOL = 1e-3  # ... within which, after `_REMAKE_ITERATIONS`, it has settled
-
-
-def _unsettled(cand: Candidate, value: float) -> bool:
-    """Whether a self-dependent candidate's value fitted is still off the value its column was made at
-    (`_SETTLED_TOL`), other than at no change."""
-    if cand.remake is None or cand.made_at is None or abs(value) < 1e-9:
-        return False
-    return abs(value - cand.made_at) > _SETTLED_TOL * max(abs(cand.made_at), abs(value))
 
 
 _REMAKE_ITERATIONS = 20
@@ -1982,15 +1981,9 @@ def _remade_at_fit(
     tried: dict[int, tuple[float, float]],
 ) -> bool:
     """The columns of candidates made at a value of their own coefficient (`Candidate.made_at`) made again, in
-    place in `X` (N, nv, p) and `steps`, where the value `coef` gives them differs from it (`_REMAKE_TOL`);
-    `start`: each step's first column. Returns whether any was made again (the caller refits, `_final_fit`).
-
-    The value fitted c is a function of the value made at m, and the one wanted is its fixed point c(m) = m.
-    Made again at c, it settles where c(m) is flat (MuJoCo's friction secant); where a column made a little off
-    moves c far (a friction in a narrower shape, `friction_ramp`, whose column holds its nominal shape times F0 /
-    m: off m, that part outweighs the difference of shapes), that walks away, to a fit of no friction. So from
-    the second time on the column is made at the secant's root of c(m) - m through the last two (m, c)
-    (`tried`, per step), within the candidate's bounds."""
+    place in `X` (N, nv, p) and `steps`, where the value `coef` gives them differs from it (`_REMAKE_TOL`), at
+    `Candidate.next_made_at` (`tried`: each step's last (made at, fitted)); `start`: each step's first column.
+    Returns whether any was made again (the caller refits, `_final_fit`)."""
     moved = False
     for i, st in enumerate(steps):
         cand = st.candidate
@@ -1998,17 +1991,9 @@ def _remade_at_fit(
             continue
         assert len(st.kept) == 1, "a self-dependent candidate has one column"
         col, value = int(start[i]), float(coef[int(start[i])])
-        scale = max(abs(cand.made_at), abs(value), 1e-9)
-        if abs(value - cand.made_at) <= _REMAKE_TOL * scale or abs(value) < 1e-9:
-            continue  # agreed, or no change (the secant's limit: the column it has is as good)
-        at = value
-        if i in tried:
-            m_last, c_last = tried[i]
-            g, g_last = value - cand.made_at, c_last - m_last
-            if g != g_last:
-                root = cand.made_at - g * (cand.made_at - m_last) / (g - g_last)
-                if np.isfinite(root) and abs(root) >= 1e-9 and cand.lower[0] < root < cand.upper[0]:
-                    at = float(root)
+        if cand.agrees(value, _REMAKE_TOL):
+            continue
+        at = cand.next_made_at(value, tried.get(i))
         tried[i] = (cand.made_at, value)
         cand = cand.remake(at)
         steps[i] = dataclasses.replace(st, candidate=cand)
