@@ -142,12 +142,12 @@ def test_a_nominal_friction_ramp_wider_than_the_robots_friction_is_narrowed(tmp_
     1e-4 kg m^2 link asks for). Without `friction_ramp` no candidate changes the shape of a nominal friction: on
     these records joint 7 got a Stribeck friction of 0.65 N m and a viscous one of 1.09 N m s/rad, the file kept the
     wide ramp, and joint 7's held-out torque RMS fell from 0.848 to 0.169 N m. Now the joint's friction is named as
-    replaced by one in a narrower shape (1.003 +- 0.011 N m), the file written applies that friction (MuJoCo's
+    replaced by one in a narrower shape (1.002 +- 0.010 N m), the file written applies that friction (MuJoCo's
     inverse dynamics follows the declared ramp), and the RMS falls to 0.059 N m. A joint whose file is not changed
     keeps its nominal frictionloss, and every friction named in a narrower shape is the one the file applies: the
-    selection judges such a column only once it agrees with the value it was made at (`select._settled`; before,
-    a 0.03 rad/s ramp on joint 5 was chosen as a share of F0, found no level in the final fit, and on seed 2 its
-    company raised the held-out error until nothing was named)."""
+    selection judges such a column at its least-squares level (`select._settled`; before, a 0.03 rad/s ramp on
+    joint 5 was chosen as a share of F0, found no level in the final fit, and on seed 2 its company raised the
+    held-out error until nothing was named)."""
     path = torque_driven(SHARED_ROBOTS / "xarm7_nohand.xml", tmp_path)
     generate = partial(pinocchio_rollout, path, settings=ARMS["xarm7_nohand"], friction_width=0.05, physics_hz=40000.0)
     _, dg = diagnose_case("xarm7_nohand", [], 0, generate=generate)
@@ -171,18 +171,18 @@ def test_a_nominal_friction_ramp_wider_than_the_robots_friction_is_narrowed(tmp_
 
 def test_a_self_dependent_column_is_made_again_at_the_secants_root() -> None:
     """A column made at a value m of its own coefficient is fitted at c(m); the value wanted is the fixed point
-    c(m) = m. Where c(m) is steep (a friction in a narrower shape, whose column holds F0 / m times the nominal
-    shape), making it again at c walks away from the fixed point; the secant through the last two tries finds it.
-    The root is not taken outside the candidate's bounds, and a fit at no change agrees."""
+    c(m) = m (MuJoCo's friction secant, `coulomb_friction@mujoco`). Where c(m) is steep, making it again at c walks
+    away from the fixed point (here 0.8 -> 0.48 -> -0.02 ...); the secant through the last two tries finds it. The
+    root is not taken outside the candidate's bounds, and a fit at no change agrees."""
     from identify.diagnose.candidates import Candidate
 
     def made(at: float) -> Candidate:
         return Candidate(
-            "friction_ramp",
+            "coulomb_friction",
             "j",
             "N m",
             "",
-            ("Fcr1",),
+            ("Fc1",),
             lambda s: s,
             lambda *a: (0.0, 0.0),
             ((0.0, np.inf),),
@@ -190,20 +190,18 @@ def test_a_self_dependent_column_is_made_again_at_the_secants_root() -> None:
             remake=made,
         )
 
-    def fitted(m: float) -> float:  # steep about its fixed point 1.0: c(m) - m = 3 (m - 1)
-        return 4.0 * m - 3.0
+    def fitted(m: float) -> float:  # steep and curved about its fixed point 1.0
+        return 1.0 + 3.0 * (m - 1.0) + 2.0 * (m - 1.0) ** 2
 
-    cand, last, plain = made(0.8), None, 0.8
-    for _ in range(8):
+    cand, last = made(0.8), None
+    for _ in range(12):
         value = fitted(float(cand.made_at))  # type: ignore[arg-type]
         if cand.agrees(value, 1e-9):
             break
         at = cand.next_made_at(value, last)
         last = (float(cand.made_at), value)  # type: ignore[arg-type]
         cand = made(at)
-    assert cand.agrees(fitted(float(cand.made_at)), 1e-9) and abs(float(cand.made_at) - 1.0) < 1e-9  # type: ignore[arg-type]
-    for _ in range(5):
-        plain = fitted(plain)  # made again at the value fitted: 0.2, -2.2, -11.8, ... away from 1
-    assert plain < -100
-    assert made(0.5).next_made_at(-0.7, (0.8, -0.4)) == -0.7  # its root -1.3 is below the bound: the value fitted
+    assert abs(float(cand.made_at) - 1.0) < 1e-9, cand.made_at  # type: ignore[arg-type]
+    assert made(0.8).next_made_at(fitted(0.8), None) == fitted(0.8)  # the first time: at the value fitted
+    assert made(0.5).next_made_at(0.2, (0.8, 0.4)) == 0.2  # its root -0.4 is below the bound: at the value fitted
     assert made(0.5).agrees(0.0, 1e-9)

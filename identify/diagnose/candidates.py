@@ -189,6 +189,13 @@ class Signals:
             out[rows] = band_lowpass(x[rows], fs, hz(int(r)))
         return out
 
+    def affine_parts(self, candidate: Candidate) -> tuple[np.ndarray, np.ndarray]:
+        """((N, nv) S, (N, nv) O) of a candidate whose effect is affine in its value c (`Candidate.affine`): c S - O,
+        both as `columns` gives them; its column made at m is S - O / m."""
+        assert candidate.affine and candidate.remake is not None and candidate.made_at is not None, candidate.key
+        made, plain = self.columns(candidate)[:, :, 0], self.columns(candidate.remake(np.inf))[:, :, 0]
+        return plain, candidate.made_at * (plain - made)
+
     def columns(self, candidate: Candidate) -> np.ndarray:
         """(N, nv, k) the candidate's columns in the analysis band (0 where not `used`); those of
         `SHARP_EFFECTS` through the state filter first, as the residual sees them (`state_hz`)."""
@@ -281,6 +288,9 @@ class Candidate:
             goes with Fc), the coefficient it was made at; None for every other candidate.
         remake: with `made_at`, coefficient -> the same candidate with its column made at that coefficient (the
             final fit iterates it to the value it fits, `diagnosis._final_fit`).
+        affine: with `made_at`, its effect is affine in its value c, c S - O (`Signals.affine_parts`; its column
+            made at m is S - O / m, made at inf S): fitted as such, not iterated (`select._settled`,
+            `diagnosis._final_fit`).
     """
 
     effect: str
@@ -295,6 +305,7 @@ class Candidate:
     variant: str = ""
     made_at: float | None = None
     remake: Callable[[float], Candidate] | None = None
+    affine: bool = False
 
     @property
     def null(self) -> float:
@@ -528,6 +539,15 @@ def _narrower_shape(dq: np.ndarray, variant: str) -> np.ndarray:
     return np.sign(dq) if variant == IDEAL else np.clip(dq / float(variant), -1.0, 1.0)  # type: ignore[no-any-return]
 
 
+def _nominal_shape(plant: Plant, s: Signals, j: int) -> np.ndarray:
+    """(N,) joint j's nominal frictionloss shape along the signals' motion, as the nominal torque holds it: at the
+    velocity its ramp sees, which in a log of MuJoCo's own steps is not the joint's (`dynamics.stepping`)."""
+    dq = s.dq
+    if plant.stepping is not None:
+        dq = plant.stepping.friction_velocity(plant, s.q, s.dq, s.ddq)[0]
+    return friction_shape(dq, s.ddq, plant.friction_speed, plant.friction_lead)[:, j]  # type: ignore[no-any-return]
+
+
 def _ramp_level(plant: Plant, train: Signals, residual: np.ndarray, j: int, variant: str) -> float | None:
     """The level Fc of joint j's friction in the narrower shape `variant` that the training residual gives with
     the nominal F0 taken out whole (r + F0 nominal shape ~ Fc shape), the joint's viscous friction and armature
@@ -542,9 +562,8 @@ def _ramp_level(plant: Plant, train: Signals, residual: np.ndarray, j: int, vari
         full[:, j] = x
         return train.in_band(train.through_states(full) if sharp else full)[rows, j]  # type: ignore[no-any-return]
 
+    shape, held = seen(_narrower_shape(train.dq[:, j], variant), sharp=True), seen(_nominal_shape(plant, train, j))
     dq, ddq = train.dq[:, j], train.ddq[:, j]
-    nominal = friction_shape(dq[:, None], ddq[:, None], plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1])
-    shape, held = seen(_narrower_shape(dq, variant), sharp=True), seen(nominal[:, 0])
     if not np.any(np.abs(shape - held) > 1e-9):
         return None
     cols = np.column_stack([shape, seen(dq), seen(ddq)])
@@ -556,13 +575,11 @@ def _ramp_candidate(plant: Plant, j: int, variant: str, level: float) -> Candida
     """Joint j's friction replaced by one of level Fc in the narrower shape `variant` (`_friction_ramps`), its
     column the secant from the nominal friction to Fc = `level` [N m]."""
     f0 = float(plant.frictionloss[j])
-    speed, lead = plant.friction_speed[j : j + 1], plant.friction_lead[j : j + 1]
 
     def column(s: Signals) -> np.ndarray:  # the plant's friction as the residual holds it, less the nominal's
         shape = np.zeros(s.dq.shape)
         shape[:, j] = _narrower_shape(s.dq[:, j], variant)
-        nominal = friction_shape(s.dq[:, j : j + 1], s.ddq[:, j : j + 1], speed, lead)[:, 0]
-        return s.through_states(shape)[:, j] - (f0 / level) * nominal  # type: ignore[no-any-return]
+        return s.through_states(shape)[:, j] - (f0 / level) * _nominal_shape(plant, s, j)  # type: ignore[no-any-return]
 
     unit = "rad/s" if plant.hinge[j] else "m/s"
     narrower = "the ideal Fc sign(dq)" if variant == IDEAL else f"a ramp Fc sat(dq/{variant}) ({variant} {unit} wide)"
@@ -585,6 +602,7 @@ def _ramp_candidate(plant: Plant, j: int, variant: str, level: float) -> Candida
         variant,
         made_at=level,
         remake=partial(_ramp_candidate, plant, j, variant),
+        affine=True,
     )
 
 

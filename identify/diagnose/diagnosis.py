@@ -47,6 +47,7 @@ from identify.diagnose.calibrate import (
     predict_measured_torque,
 )
 from identify.diagnose.candidates import (
+    IDEAL,
     MAX_DELAY_S,
     SMOOTH_COULOMB_SPEEDS,
     SOFT_FRICTION,
@@ -1068,8 +1069,8 @@ def diagnose(
             for f in demoted
         ]
         + [
-            f"{key}: chosen by the selection, but its column, made at its own value, found no value it agrees with "
-            "beside the effects chosen with it (the friction the file would hold is not the one fitted): not named"
+            f"{key}: chosen by the selection, but fitted beside the effects chosen with it, its column (made at its "
+            "own value) found no value the file can hold (none it agrees with, or no friction at all): not named"
             for key in unsettled
         ]
         + [
@@ -1661,8 +1662,7 @@ _FGLS_ITERATIONS = 20  # re-weightings of the final fit at most (they settle wit
 STOPPED_SHARE = 0.25  # a joint at its range limit on more than this share of a record is not checked for its torque
 SLIDING_FRACTION = 0.1  # below this share of a joint's RMS speed in a record, its Coulomb friction is not fitted
 _SIGN_FRICTION = frozenset({"coulomb_friction", "load_friction"})  # friction laws of sign(dq)
-# told apart below it (a friction in a narrower shape than the nominal ramp differs from it there only)
-_LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "friction_ramp", "stribeck_friction", "backlash"})
+_LOW_SPEED_SHAPES = frozenset({"smooth_coulomb_friction", "stribeck_friction", "backlash"})  # told apart below it
 
 
 def _slow_rows(s: Signals, joints: np.ndarray, ramp: np.ndarray | None = None) -> np.ndarray:
@@ -1739,7 +1739,11 @@ def _sliding_rows(s: Signals, steps: list[Step], names: tuple[str, ...]) -> np.n
         effects = {c.effect for c in chosen}
         # MuJoCo's own frictionloss shape is a ramp of the speed and acceleration: its slow rows are its law too
         soft = any(c.variant == SOFT_FRICTION for c in chosen)
-        joints[j] = bool(effects & _SIGN_FRICTION) and not effects & _LOW_SPEED_SHAPES and not soft
+        # a friction in a narrower shape (`friction_ramp`): the ideal one is a law of sign(dq), a ramp a shape
+        ramps = [c.variant for c in chosen if c.effect == "friction_ramp"]
+        sign = bool(effects & _SIGN_FRICTION) or IDEAL in ramps
+        shaped = bool(effects & _LOW_SPEED_SHAPES) or any(v != IDEAL for v in ramps)
+        joints[j] = sign and not shaped and not soft
     mask = ~_slow_rows(s, joints)
     return None if mask.all() else mask
 
@@ -1884,12 +1888,38 @@ def _final_fit(
     with Fc, as a secant from the nominal Fc) is made again at the value fitted, after every solve, until the two
     agree (to `_REMAKE_TOL` of the larger): the calibrated MJCF then applies the friction the fit used.
     Made once from the training residual alone, a change fitted beside other effects could end far from it (a
-    secant at +0.5 N m fitted at -0.5 was 0.24 N m off MuJoCo's friction at the written value).
+    secant at +0.5 N m fitted at -0.5 was 0.24 N m off MuJoCo's friction at the written value). It is made again
+    at the secant's root of c(m) - m after the first time (`Candidate.next_made_at`), and a step that has not
+    settled after `_REMAKE_ITERATIONS` is dropped (with a note by the caller). A candidate whose effect is affine
+    in its value (`Candidate.affine`: a friction in a narrower shape, c S - O) is not iterated: every solve fits c
+    S with O moved to the torque it explains, the least squares of the model the file holds, and makes its column
+    at that c; one fitted at no friction is dropped.
     """
     lo, hi = _step_bounds(steps, n_nuisance)
     residual = s.residual  # low-passed record by record on every access: once
     fitted = _on_sliding_rows(s, sliding)
-    solve = partial(_fit_on, s, sliding)
+    X, steps = X.copy(), list(steps)  # self-dependent columns are made again in place (`_remade_at_fit`)
+    start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
+    affine = {st.candidate.key: s.affine_parts(st.candidate) for st in steps if st.candidate.affine}
+
+    def solve(X: np.ndarray, r: np.ndarray, weights: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> LinearFit:
+        """The bounded fit; a candidate whose effect is affine in its value (`Candidate.affine`: c S - O) fitted
+        as such, its column S and its fixed part O added to the torque it explains (least squares of the model
+        the file holds, and the std of its value), then made again at the value fitted (c z_c = c S - O)."""
+        if not affine:
+            return _fit_on(s, sliding, X, r, weights, lo, hi)
+        XS, rS = X.copy(), r.copy()
+        for i, st in enumerate(steps):
+            if st.candidate.key in affine:
+                XS[:, :, start[i]], offset = affine[st.candidate.key]
+                rS = rS + offset
+        fit = _fit_on(s, sliding, XS, rS, weights, lo, hi)
+        for i, st in enumerate(steps):
+            value = float(fit.coef[start[i]])
+            if st.candidate.key in affine and value > 0 and st.candidate.remake is not None:
+                steps[i] = dataclasses.replace(st, candidate=st.candidate.remake(value))
+                X[:, :, start[i]] = s.columns(steps[i].candidate)[:, :, 0]
+        return fit
 
     fit = solve(X, residual, weights, lo, hi)
     for _ in range(_FGLS_ITERATIONS):
@@ -1902,15 +1932,15 @@ def _final_fit(
         fit = solve(X, residual, weights, lo, hi)
         if done:
             break
-    start = n_nuisance + np.cumsum([0] + [len(st.kept) for st in steps])
-    X, steps = X.copy(), list(steps)  # self-dependent columns are made again in place (`_remade_at_fit`)
-    tried: dict[int, tuple[float, float]] = {}  # each one's last (value made at, value fitted)
+    tried: dict[str, tuple[float, float]] = {}  # each one's last (value made at, value fitted), by its key
     for _ in range(_REMAKE_ITERATIONS):
         if not _remade_at_fit(s, steps, X, fit.coef, start, tried):
             break
         fit = solve(X, residual, weights, lo, hi)
-    else:  # one found no fixed point: the file would not hold what the fit used, so it is not an effect found
-        keep = [i for i, st in enumerate(steps) if st.candidate.agrees(float(fit.coef[int(start[i])]), SETTLED_TOL)]
+    # one that found no fixed point, or an affine one fitted at no friction at all (c S - O at c = 0: the nominal
+    # friction taken away, which no column made at c holds): the file would not hold what the fit used
+    keep = [i for i, st in enumerate(steps) if _held(st.candidate, float(fit.coef[int(start[i])]))]
+    if len(keep) < len(steps):
         columns = [np.arange(n_nuisance)] + [np.arange(start[i], start[i] + len(steps[i].kept)) for i in keep]
         X, steps = X[:, :, np.concatenate(columns)], [steps[i] for i in keep]
         lo, hi = _step_bounds(steps, n_nuisance)
@@ -1969,6 +1999,14 @@ def _final_fit(
 _REMAKE_TOL = 1e-6  # relative agreement of a self-dependent column's value and the value it was made at
 
 
+def _held(cand: Candidate, value: float) -> bool:
+    """Whether the file can hold a self-dependent candidate fitted at `value`: an affine one (`Candidate.affine`)
+    above no friction, any other one where its value agrees with the value its column was made at."""
+    if cand.affine:
+        return value > 0
+    return cand.agrees(value, SETTLED_TOL)
+
+
 _REMAKE_ITERATIONS = 20
 
 
@@ -1978,23 +2016,24 @@ def _remade_at_fit(
     X: np.ndarray,
     coef: np.ndarray,
     start: np.ndarray,
-    tried: dict[int, tuple[float, float]],
+    tried: dict[str, tuple[float, float]],
 ) -> bool:
     """The columns of candidates made at a value of their own coefficient (`Candidate.made_at`) made again, in
     place in `X` (N, nv, p) and `steps`, where the value `coef` gives them differs from it (`_REMAKE_TOL`), at
-    `Candidate.next_made_at` (`tried`: each step's last (made at, fitted)); `start`: each step's first column.
-    Returns whether any was made again (the caller refits, `_final_fit`)."""
+    `Candidate.next_made_at` (`tried`: each one's last (made at, fitted), by its key); `start`: each step's first
+    column. Returns whether any was made again (the caller refits, `_final_fit`). An affine one is made at its
+    value by the fit itself (`_final_fit`)."""
     moved = False
     for i, st in enumerate(steps):
         cand = st.candidate
-        if cand.remake is None or cand.made_at is None:
+        if cand.remake is None or cand.made_at is None or cand.affine:
             continue
         assert len(st.kept) == 1, "a self-dependent candidate has one column"
         col, value = int(start[i]), float(coef[int(start[i])])
         if cand.agrees(value, _REMAKE_TOL):
             continue
-        at = cand.next_made_at(value, tried.get(i))
-        tried[i] = (cand.made_at, value)
+        at = cand.next_made_at(value, tried.get(cand.key))
+        tried[cand.key] = (cand.made_at, value)
         cand = cand.remake(at)
         steps[i] = dataclasses.replace(st, candidate=cand)
         X[:, :, col] = s.columns(cand)[:, :, 0]

@@ -51,10 +51,10 @@ nearly one at small angles), other than the torque offset itself, must also lowe
 zero under another name.
 
 A candidate whose column is made at a value of its own coefficient (`Candidate.made_at`: MuJoCo's friction secant,
-a friction in a narrower shape than the nominal ramp) is made again beside the chosen columns until the value
-fitted agrees with the value it was made at (`_settled`) before it is scored as chosen: the friction the calibrated
-MJCF would write. One that finds no such value is set aside as one that is not significant is (a joint-5 ramp of
-the xArm7 that sticks at its reversals had been chosen as a share of its nominal friction, and no level of it held).
+a friction in a narrower shape than the nominal ramp) is made at the value the calibrated MJCF would write beside
+the chosen columns (`_settled`) and judged again by every rule above on that column before it is chosen. One that
+finds no such value is set aside as one that is not significant is (a joint-5 ramp of the xArm7 that sticks at its
+reversals had been chosen as a share of its nominal friction, and no level of it held).
 
 Every fit is bounded by the candidates' physical ranges (`Candidate.bounds`), in the folds too. The BIC
 counts the effective number of samples, n / tau_int with tau_int the residual's integrated autocorrelation
@@ -374,11 +374,25 @@ def _settled(
     weights: np.ndarray,
     record: np.ndarray,
 ) -> Candidate | None:
-    """A self-dependent candidate (`Candidate.made_at`: its column made at a value of its own coefficient) made again
-    beside the chosen columns X until the value fitted agrees with the value it was made at (`SETTLED_TOL`,
-    `Candidate.next_made_at`): the friction the calibrated MJCF would write. None where it finds no such value
-    (a friction in a narrower shape whose level the data do not support beside the effects chosen: it had been
-    chosen, its fit walked away, and it took the places of effects that explain the joint)."""
+    """A self-dependent candidate (`Candidate.made_at`: its column made at a value of its own coefficient) made at
+    the value the file would hold beside the chosen columns X: an affine one (`Candidate.affine`, c S - O) at the
+    least-squares c of c S against the residual plus O, None where that is no friction; any other made again until
+    the value fitted agrees with the value it was made at (`SETTLED_TOL`, `Candidate.next_made_at`), None where it
+    finds no such value. A friction in a narrower shape had been chosen as a share of the nominal one beside it,
+    its level walked away in the final fit, and it took the places of effects that explain the joint."""
+    if cand.affine:  # c S - O: fitted as such, at the value of least squares (and no friction is none)
+        plain, offset = train.affine_parts(cand)
+        fit = fit_columns(
+            np.concatenate([X, plain[:, :, None]], axis=2),
+            residual + offset,
+            weights,
+            lower=np.concatenate([lo, cand.lower]),
+            upper=np.concatenate([hi, cand.upper]),
+            record=record,
+            used=train.used,
+        )
+        value = float(fit.coef[X.shape[2]])
+        return cand.remake(value) if value > 0 and cand.remake is not None else None
     last: tuple[float, float] | None = None
     for _ in range(_SETTLE_ITERATIONS):
         cols = train.columns(cand)
@@ -598,15 +612,15 @@ def select_effects(
         bic_c, cand, kept, rss_c, held_c, held_nominal = best
         if cand.made_at is not None and cand.remake is not None:  # judged as the file written would hold it
             settled = _settled(cand, X, lo, hi, train, residual, weights, row_record)
-            if settled is None:
+            made = built[cand.key]
+            if settled is not None:
+                built[cand.key] = train.columns(settled)
+                rejudged = admissible_among([settled])[0]  # every rule again, on the column as it settled
+            if settled is None or rejudged is None:
+                built[cand.key] = made
                 rejected.add(cand.key)
                 continue
-            cand, built[cand.key] = settled, train.columns(settled)
-            rss_c, held_c = _score_added(X, lo, hi, built[cand.key], cand, b, sw, folds, n_folds, kept)
-            bic_c = _bic(rss_c, n_obs, n_eff, X.shape[2] + len(kept))
-            if _fold_mse(held_c, folds, n_folds) >= _fold_mse(held, folds, n_folds):
-                rejected.add(cand.key)
-                continue
+            bic_c, cand, kept, rss_c, held_c, held_nominal = rejudged
         X_new = np.concatenate([X, built[cand.key][:, :, kept]], axis=2)
         lo_new, hi_new = np.concatenate([lo, cand.lower[kept]]), np.concatenate([hi, cand.upper[kept]])
         fit = fit_columns(X_new, residual, weights, lower=lo_new, upper=hi_new, record=row_record, used=train.used)
