@@ -380,32 +380,21 @@ def _settled(
     the value fitted agrees with the value it was made at (`SETTLED_TOL`, `Candidate.next_made_at`), None where it
     finds no such value. A friction in a narrower shape had been chosen as a share of the nominal one beside it,
     its level walked away in the final fit, and it took the places of effects that explain the joint."""
+    lower, upper = np.concatenate([lo, cand.lower]), np.concatenate([hi, cand.upper])
+
+    def fitted(column: np.ndarray, target: np.ndarray) -> float:
+        """The candidate's value fitted with its (N, nv, 1) `column` beside X to `target`."""
+        A = np.concatenate([X, column], axis=2)
+        fit = fit_columns(A, target, weights, lower=lower, upper=upper, record=record, used=train.used)
+        return float(fit.coef[X.shape[2]])
+
     if cand.affine:  # c S - O: fitted as such, at the value of least squares (and no friction is none)
         plain, offset = train.affine_parts(cand)
-        fit = fit_columns(
-            np.concatenate([X, plain[:, :, None]], axis=2),
-            residual + offset,
-            weights,
-            lower=np.concatenate([lo, cand.lower]),
-            upper=np.concatenate([hi, cand.upper]),
-            record=record,
-            used=train.used,
-        )
-        value = float(fit.coef[X.shape[2]])
+        value = fitted(plain[:, :, None], residual + offset)
         return cand.remake(value) if value > 0 and cand.remake is not None else None
     last: tuple[float, float] | None = None
     for _ in range(_SETTLE_ITERATIONS):
-        cols = train.columns(cand)
-        fit = fit_columns(
-            np.concatenate([X, cols], axis=2),
-            residual,
-            weights,
-            lower=np.concatenate([lo, cand.lower]),
-            upper=np.concatenate([hi, cand.upper]),
-            record=record,
-            used=train.used,
-        )
-        value = float(fit.coef[X.shape[2]])
+        value = fitted(train.columns(cand), residual)
         if cand.agrees(value, SETTLED_TOL):
             return cand
         at = cand.next_made_at(value, last)
