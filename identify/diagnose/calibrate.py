@@ -222,8 +222,8 @@ def extension_from_fit(
             ext.friction_speed[j] = float(c.variant)
             continue
         if c.effect == "friction_ramp":  # the joint's friction in a narrower shape, at the level fitted
-            if full[0] <= 0:
-                continue  # the secant's limit at no friction: no change of the nominal one
+            if not c.holds(float(full[0])):
+                continue  # no friction at all: the final fit drops such a step, and no column made at it holds it
             ext.frictionloss[j] += full[0] - plant.frictionloss[j]
             ext.friction_speed[j] = 0.0 if c.variant == IDEAL else float(c.variant)
             ext.narrowed[j] = True

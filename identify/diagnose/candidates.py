@@ -336,6 +336,13 @@ class Candidate:
             return True
         return abs(value - self.made_at) <= tol * max(abs(self.made_at), abs(value))
 
+    def holds(self, value: float) -> bool:
+        """Whether the calibrated MJCF can hold this self-dependent candidate fitted at `value`: an affine one
+        above no friction (c S - O at c = 0 is the nominal friction taken away, which no column made at c holds),
+        any other one where its value agrees with the value its column was made at (`SETTLED_TOL`); True for a
+        candidate that is not self-dependent."""
+        return value > 0 if self.affine else self.agrees(value, SETTLED_TOL)
+
     def next_made_at(self, value: float, last: tuple[float, float] | None) -> float:
         """Where a self-dependent column fitted at `value` is made again: the value fitted c is a function of the
         value made at m, and the one wanted is its fixed point c(m) = m. Made again at c, it settles where c(m)
@@ -402,6 +409,7 @@ MAX_BACKLASH = 0.05  # widest backlash (lost motion) named [rad]
 MAX_COMPLIANCE = 0.05  # most compliant transmission named (stiffness >= 20 N m/rad) [rad/(N m)]
 STRIBECK_SPEEDS = (0.1, 0.5)  # Stribeck speeds tried [rad/s]
 SOFT_FRICTION = "mujoco"  # the variant of `coulomb_friction` shaped as MuJoCo's own frictionloss constraint
+SETTLED_TOL = 1e-3  # relative agreement of a self-dependent column's value and the value it was made at, settled
 SMOOTH_COULOMB_SPEEDS = (0.03, 0.1, 0.3)  # ramp widths of a smooth Coulomb friction tried [rad/s]
 FRICTIONLOSS_EFFECTS = ("coulomb_friction", "smooth_coulomb_friction", "friction_ramp")  # shapes of one frictionloss
 IDEAL = "ideal"  # the variant of `friction_ramp` that makes the nominal frictionloss the ideal Coulomb friction
@@ -514,12 +522,12 @@ def _friction_ramps(plant: Plant, train: Signals | None) -> list[Candidate]:
     robot's friction: the joint's friction in a narrower shape, the ideal sign(dq) or a ramp sat(dq / vt) of a
     width of `SMOOTH_COULOMB_SPEEDS` narrower than the nominal one, at a level Fc. No other column holds that
     change of F0's shape (a level change keeps the nominal shape, and a ramp is not tried under a wider nominal
-    one). The change from F0 in its nominal shape to Fc in the narrower one is a secant in Fc: its column, made at
-    Fc = m, is shape - (F0 / m) nominal shape, exact at Fc = m, no change at Fc = 0; made first at the Fc the
-    training residual gives (`_ramp_level`: its fixed point there, so that the selection scores the friction
-    replaced, not a share of it beside the nominal one), then again at the value the final fit gives until the
-    two agree (`Candidate.remake`), so that the file written, Fc with the solreffriction and solimpfriction of that
-    shape (`calibrate`), applies the friction the fit used. Without training signals, none."""
+    one). The change from F0 in its nominal shape N to Fc in the narrower one S, Fc S - F0 N, is affine in Fc
+    (`Candidate.affine`): the fits take it as such (`select._settled`, `diagnosis._final_fit`), and its column is
+    the change per unit Fc made at Fc = m, S - (F0 / m) N, first at the Fc the training residual gives
+    (`_ramp_levels`), then at the value fitted (`Candidate.remake`), so that the file written, Fc with the
+    solreffriction and solimpfriction of that shape (`calibrate`), applies the friction the fit used. Without
+    training signals, none."""
     if train is None:
         return []
     residual = train.residual  # low-passed on every access: once for every joint
@@ -527,10 +535,8 @@ def _friction_ramps(plant: Plant, train: Signals | None) -> list[Candidate]:
     for j in range(plant.nv):
         if plant.frictionloss[j] > 0 and plant.friction_speed[j] > 0:  # one not read as the ideal term already
             widths = [f"{vt:g}" for vt in SMOOTH_COULOMB_SPEEDS if vt < plant.friction_speed[j]]
-            for variant in (IDEAL, *widths):
-                level = _ramp_level(plant, train, residual, j, variant)
-                if level is not None:
-                    out.append(_ramp_candidate(plant, j, variant, level))
+            levels = _ramp_levels(plant, train, residual, j, (IDEAL, *widths))
+            out += [_ramp_candidate(plant, j, variant, level) for variant, level in levels.items()]
     return out
 
 
@@ -542,33 +548,49 @@ def _narrower_shape(dq: np.ndarray, variant: str) -> np.ndarray:
 def _nominal_shape(plant: Plant, s: Signals, j: int) -> np.ndarray:
     """(N,) joint j's nominal frictionloss shape along the signals' motion, as the nominal torque holds it: at the
     velocity its ramp sees, which in a log of MuJoCo's own steps is not the joint's (`dynamics.stepping`)."""
-    dq = s.dq
-    if plant.stepping is not None:
-        dq = plant.stepping.friction_velocity(plant, s.q, s.dq, s.ddq)[0]
-    return friction_shape(dq, s.ddq, plant.friction_speed, plant.friction_lead)[:, j]  # type: ignore[no-any-return]
+    dq = s.dq if plant.stepping is None else plant.stepping.friction_velocity(plant, s.q, s.dq, s.ddq)[0]
+    one = slice(j, j + 1)
+    shape = friction_shape(dq[:, one], s.ddq[:, one], plant.friction_speed[one], plant.friction_lead[one])
+    return shape[:, 0]  # type: ignore[no-any-return]
 
 
-def _ramp_level(plant: Plant, train: Signals, residual: np.ndarray, j: int, variant: str) -> float | None:
-    """The level Fc of joint j's friction in the narrower shape `variant` that the training residual gives with
+def _ramp_levels(
+    plant: Plant, train: Signals, residual: np.ndarray, j: int, variants: tuple[str, ...]
+) -> dict[str, float]:
+    """variant -> the level Fc of joint j's friction in that narrower shape that the training residual gives with
     the nominal F0 taken out whole (r + F0 nominal shape ~ Fc shape), the joint's viscous friction and armature
-    beside it, as the fits see the columns (filtered); None where the joint's torque is not measured, where the
-    shape does not differ from the nominal one on these rows, or where the level is not positive."""
+    beside it, as the fits see the columns (`_seen`); a variant is left out where the joint's torque is not
+    measured, where its shape does not differ from the nominal one on these rows, or where the level is not
+    positive."""
+    rows = _fitted_rows(train, j)
+    if rows is None:
+        return {}
+    held = _seen(train, j, rows, _nominal_shape(plant, train, j))
+    target = residual[rows, j] + plant.frictionloss[j] * held
+    beside = [_seen(train, j, rows, train.dq[:, j]), _seen(train, j, rows, train.ddq[:, j])]
+    levels = {}
+    for variant in variants:
+        shape = _seen(train, j, rows, _narrower_shape(train.dq[:, j], variant), sharp=True)
+        if np.any(np.abs(shape - held) > 1e-9):
+            level = float(np.linalg.lstsq(np.column_stack([shape, *beside]), target, rcond=None)[0][0])
+            if level > 0:
+                levels[variant] = level
+    return levels
+
+
+def _fitted_rows(train: Signals, j: int) -> np.ndarray | None:
+    """(N,) the rows where joint j's torque is fitted (`Signals.used`); None where there are none, or where the
+    joint is not actuated."""
     rows = train.used[:, j] if train.used is not None else np.ones(train.n_samples, bool)
-    if not np.any(rows) or not train.actuated[j]:
-        return None
+    return rows if np.any(rows) and train.actuated[j] else None
 
-    def seen(x: np.ndarray, sharp: bool = False) -> np.ndarray:  # joint j's column as the fits see it
-        full = np.zeros(train.dq.shape)
-        full[:, j] = x
-        return train.in_band(train.through_states(full) if sharp else full)[rows, j]  # type: ignore[no-any-return]
 
-    shape, held = seen(_narrower_shape(train.dq[:, j], variant), sharp=True), seen(_nominal_shape(plant, train, j))
-    dq, ddq = train.dq[:, j], train.ddq[:, j]
-    if not np.any(np.abs(shape - held) > 1e-9):
-        return None
-    cols = np.column_stack([shape, seen(dq), seen(ddq)])
-    level = float(np.linalg.lstsq(cols, residual[rows, j] + plant.frictionloss[j] * held, rcond=None)[0][0])
-    return level if level > 0 else None
+def _seen(train: Signals, j: int, rows: np.ndarray, x: np.ndarray, sharp: bool = False) -> np.ndarray:
+    """(rows,) a column of joint j as the fits see it: in the analysis band, through the state filter first where
+    it is `sharp` in the velocity (`Signals.columns`)."""
+    full = np.zeros(train.dq.shape)
+    full[:, j] = x
+    return train.in_band(train.through_states(full) if sharp else full)[rows, j]  # type: ignore[no-any-return]
 
 
 def _ramp_candidate(plant: Plant, j: int, variant: str, level: float) -> Candidate:
@@ -694,16 +716,11 @@ def _soft_friction_change(train: Signals, residual: np.ndarray, j: int, shape: _
     the joint's viscous friction and armature beside it (three passes from the shape at F0: the column
     goes with dF); None where the joint's torque is not measured, where the total would not be positive, or
     where the change is not one (a joint without friction, or a lower one where it has none to lose)."""
-    rows = train.used[:, j] if train.used is not None else np.ones(train.n_samples, bool)
-    if not np.any(rows) or not train.actuated[j]:
+    rows = _fitted_rows(train, j)
+    if rows is None:
         return None
     dq, ddq = train.dq[:, j], train.ddq[:, j]
-
-    def seen(x: np.ndarray, sharp: bool = False) -> np.ndarray:  # joint j's column as the fits see it
-        full = np.zeros(train.dq.shape)
-        full[:, j] = x
-        return train.in_band(train.through_states(full) if sharp else full)[rows, j]  # type: ignore[no-any-return]
-
+    seen = partial(_seen, train, j, rows)
     column = shape.unit(dq, ddq)
     change = 0.0
     for _ in range(3):

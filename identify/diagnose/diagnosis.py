@@ -65,15 +65,7 @@ from identify.diagnose.residuals import (
     residual_signature,
     whiteness,
 )
-from identify.diagnose.select import (
-    SETTLED_TOL,
-    SelectionOptions,
-    Step,
-    _flat,
-    _span_free,
-    fit_columns,
-    select_effects,
-)
+from identify.diagnose.select import SelectionOptions, Step, _flat, _span_free, fit_columns, select_effects
 from identify.diagnose.simulation_error import (
     SimulationError,
     Stepper,
@@ -826,7 +818,7 @@ def diagnose(
     X, fit, left_tr, steps = _final_fit(
         plant, steps, X, s_tr, weights, m, sliding, record_angles=m_t if m > m_t else None
     )
-    unsettled = [st.candidate.key for st in chosen if st.candidate.key not in {s.candidate.key for s in steps}]
+    not_held = [st.candidate.key for st in chosen if st.candidate.key not in {s.candidate.key for s in steps}]
     lead = _torque_lead(plant, steps, X, s_tr, weights, m, sliding)
     fitted_rows = np.ones((s_tr.n_samples, plant.nv), bool) if s_tr.used is None else s_tr.used
     sticking = {  # per joint: the share of the torques it fits that the final fit left out as sticking
@@ -1071,7 +1063,7 @@ def diagnose(
         + [
             f"{key}: chosen by the selection, but fitted beside the effects chosen with it, its column (made at its "
             "own value) found no value the file can hold (none it agrees with, or no friction at all): not named"
-            for key in unsettled
+            for key in not_held
         ]
         + [
             f"{f.name}: chosen by the selection, but fitted with the effects chosen after it, it ends at its "
@@ -1275,14 +1267,17 @@ def _separation(a: str, b: str, a_name: str = "", b_name: str = "") -> str:
         )
     if "time_delay" in pair:
         return "faster excitation: a delay's torque grows with frequency (as d tau/dt), the alternative's does not"
-    if pair & {"coulomb_friction", "smooth_coulomb_friction", "friction_ramp", "stribeck_friction", "backlash"} or (
-        "load_friction" in pair
-    ):
+    if pair & _FRICTION_SHAPES:
         return "dwell at low speed and reverse slowly, at several loads: friction shapes differ near zero speed"
     return (
         f"a motion on which the columns of {a_name or a} and {b_name or b} differ (they are nearly parallel on "
         "these data)"
     )
+
+
+_FRICTION_SHAPES = frozenset(
+    {"coulomb_friction", "smooth_coulomb_friction", "friction_ramp", "stribeck_friction", "backlash", "load_friction"}
+)  # told apart near zero speed (`_separation`)
 
 
 # (finding's effect, alternative's effect) pairs where the finding's columns can hold the alternative whole: a
@@ -1906,18 +1901,16 @@ def _final_fit(
         """The bounded fit; a candidate whose effect is affine in its value (`Candidate.affine`: c S - O) fitted
         as such, its column S and its fixed part O added to the torque it explains (least squares of the model
         the file holds, and the std of its value), then made again at the value fitted (c z_c = c S - O)."""
-        if not affine:
-            return _fit_on(s, sliding, X, r, weights, lo, hi)
+        at = [i for i, st in enumerate(steps) if st.candidate.key in affine]
         XS, rS = X.copy(), r.copy()
-        for i, st in enumerate(steps):
-            if st.candidate.key in affine:
-                XS[:, :, start[i]], offset = affine[st.candidate.key]
-                rS = rS + offset
+        for i in at:
+            XS[:, :, start[i]], offset = affine[steps[i].candidate.key]
+            rS = rS + offset
         fit = _fit_on(s, sliding, XS, rS, weights, lo, hi)
-        for i, st in enumerate(steps):
-            value = float(fit.coef[start[i]])
-            if st.candidate.key in affine and value > 0 and st.candidate.remake is not None:
-                steps[i] = dataclasses.replace(st, candidate=st.candidate.remake(value))
+        for i in at:
+            cand, value = steps[i].candidate, float(fit.coef[start[i]])
+            if cand.holds(value) and cand.remake is not None:
+                steps[i] = dataclasses.replace(steps[i], candidate=cand.remake(value))
                 X[:, :, start[i]] = s.columns(steps[i].candidate)[:, :, 0]
         return fit
 
@@ -1939,7 +1932,7 @@ def _final_fit(
         fit = solve(X, residual, weights, lo, hi)
     # one that found no fixed point, or an affine one fitted at no friction at all (c S - O at c = 0: the nominal
     # friction taken away, which no column made at c holds): the file would not hold what the fit used
-    keep = [i for i, st in enumerate(steps) if _held(st.candidate, float(fit.coef[int(start[i])]))]
+    keep = [i for i, st in enumerate(steps) if st.candidate.holds(float(fit.coef[start[i]]))]
     if len(keep) < len(steps):
         columns = [np.arange(n_nuisance)] + [np.arange(start[i], start[i] + len(steps[i].kept)) for i in keep]
         X, steps = X[:, :, np.concatenate(columns)], [steps[i] for i in keep]
@@ -1997,14 +1990,6 @@ def _final_fit(
 
 
 _REMAKE_TOL = 1e-6  # relative agreement of a self-dependent column's value and the value it was made at
-
-
-def _held(cand: Candidate, value: float) -> bool:
-    """Whether the file can hold a self-dependent candidate fitted at `value`: an affine one (`Candidate.affine`)
-    above no friction, any other one where its value agrees with the value its column was made at."""
-    if cand.affine:
-        return value > 0
-    return cand.agrees(value, SETTLED_TOL)
 
 
 _REMAKE_ITERATIONS = 20

@@ -360,7 +360,6 @@ def _without_offset_like(
     return rest, without, [c for c in kept if c in offset_like]
 
 
-SETTLED_TOL = 1e-3  # relative agreement of a self-dependent column's value and the value it was made at, settled
 _SETTLE_ITERATIONS = 20
 
 
@@ -376,9 +375,9 @@ def _settled(
 ) -> Candidate | None:
     """A self-dependent candidate (`Candidate.made_at`: its column made at a value of its own coefficient) made at
     the value the file would hold beside the chosen columns X: an affine one (`Candidate.affine`, c S - O) at the
-    least-squares c of c S against the residual plus O, None where that is no friction; any other made again until
-    the value fitted agrees with the value it was made at (`SETTLED_TOL`, `Candidate.next_made_at`), None where it
-    finds no such value. A friction in a narrower shape had been chosen as a share of the nominal one beside it,
+    least-squares c of c S against the residual plus O; any other made again until the value fitted agrees with
+    the value it was made at (`Candidate.next_made_at`). None where it finds no value the file can hold
+    (`Candidate.holds`). A friction in a narrower shape had been chosen as a share of the nominal one beside it,
     its level walked away in the final fit, and it took the places of effects that explain the joint."""
     lower, upper = np.concatenate([lo, cand.lower]), np.concatenate([hi, cand.upper])
 
@@ -391,11 +390,11 @@ def _settled(
     if cand.affine:  # c S - O: fitted as such, at the value of least squares (and no friction is none)
         plain, offset = train.affine_parts(cand)
         value = fitted(plain[:, :, None], residual + offset)
-        return cand.remake(value) if value > 0 and cand.remake is not None else None
+        return cand.remake(value) if cand.holds(value) and cand.remake is not None else None
     last: tuple[float, float] | None = None
     for _ in range(_SETTLE_ITERATIONS):
         value = fitted(train.columns(cand), residual)
-        if cand.agrees(value, SETTLED_TOL):
+        if cand.holds(value):
             return cand
         at = cand.next_made_at(value, last)
         last = (float(cand.made_at or 0.0), value)

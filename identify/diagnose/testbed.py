@@ -130,6 +130,21 @@ class Injected:
 
 
 @dataclass(frozen=True)
+class Expected:
+    """A finding expected where nothing is hidden: the plant itself differs from the nominal model (the xArm7's
+    hardware friction against its MJCF's wide frictionloss ramp, `_narrowed_friction_row`). Its `effect`, `joint`,
+    `size` and `value` as an `Injected`'s, to be named first."""
+
+    effect: str
+    joint: str
+    size: float
+
+    @property
+    def value(self) -> float:
+        return self.size
+
+
+@dataclass(frozen=True)
 class TestbedSystem:
     """How a built-in system is excited and measured by the testbed.
 
@@ -925,7 +940,7 @@ def hidden_effect_table(seed: int = 0) -> list[dict[str, Any]]:
     rows = []
     for system, effects, expect in hidden_effect_cases():
         plant, dg = diagnose_case(system, effects, seed)
-        rows.append(_row(system, effects, expect, plant, dg))
+        rows.append(_row(system, effects[0] if effects else None, expect, plant, dg))
     return rows
 
 
@@ -1014,41 +1029,12 @@ def _narrowed_friction_row(robots: str | Path, folder: str | Path, seeds: range)
     rad/s wide on joint 7 at MuJoCo's default solver parameters: the plant's friction is the discrepancy, to be
     named as joint 7's friction in a narrower shape (`friction_ramp`) at the plant's 1 N m. A row as `_seeds_row`
     makes, its truth that friction."""
-    arm, joint = "xarm7_nohand", "joint7"
+    arm = "xarm7_nohand"
     path = torque_driven(Path(robots) / f"{arm}.xml", folder)
     generate = partial(pinocchio_rollout, path, settings=ARMS[arm], friction_width=0.05, physics_hz=40000.0)
     runs = [diagnose_case(arm, [], seed, generate=generate) for seed in seeds]
-
-    def z(dg: Any) -> float | None:
-        first = dg.findings[0] if dg.findings else None
-        if first is None or (first.effect, first.target) != ("friction_ramp", joint) or not np.isfinite(first.std):
-            return None
-        return float((first.value - 1.0) / first.std)
-
-    def ok(dg: Any) -> bool:
-        return z(dg) is not None and dg.verdict in ("explained", "unexplained_structure")
-
-    dg = runs[0][1]
-    first = dg.findings[0] if dg.findings else None
-    row = {
-        "system": arm,
-        "truth": f"hardware friction: friction_ramp {joint} 1",
-        "expect": "named",
-        "named_first": first.name if first else "-",
-        "value": first.value if first else None,
-        "std": first.std if first else None,
-        "z": z(dg),
-        "verdict": dg.verdict,
-        "findings": [f.name for f in dg.findings],
-        "nominal_rms": dg.models["nominal"]["torque_rms"][joint],
-        "calibrated_rms": dg.models["calibrated"]["torque_rms"][joint],
-        "joint": joint,
-        "ok": ok(dg),
-        "z_seeds": [z(d) for _, d in runs],
-        "ok_seeds": [ok(d) for _, d in runs],
-        "seeds": list(seeds),
-    }
-    print(row["system"], row["truth"], row["named_first"], dg.verdict, row["ok"], flush=True)
+    row = _seeds_row(arm, [], runs, seeds, "named", Expected("friction_ramp", "joint7", 1.0))
+    row["truth"] = f"hardware friction: {row['truth']}"
     return row
 
 
@@ -1138,23 +1124,27 @@ def servo_log_markdown(rows: list[dict[str, Any]]) -> str:
 
 
 def _seeds_row(
-    system: str, effects: list[Injected], runs: list[tuple[Plant, Any]], seeds: range, expect: str | None = None
+    system: str,
+    effects: list[Injected],
+    runs: list[tuple[Plant, Any]],
+    seeds: range,
+    expect: str | None = None,
+    expected: Expected | None = None,
 ) -> dict[str, Any]:
     """The row of the first seed's (plant, diagnosis), with in `z_seeds` the (value - truth) / std of every seed
-    where the hidden effect is named first (None where it is not) and in `ok_seeds` whether each is as `expect`ed
-    (None: `named`, or `clean` without effects)."""
-    row = _row(system, effects, expect or ("named" if effects else "clean"), *runs[0])
-    truth = effects[0] if effects else None
+    where the hidden effect (or the finding `expected` where none is hidden) is named first (None where it is not)
+    and in `ok_seeds` whether each is as `expect`ed (None: `named`, or `clean` without effects)."""
+    truth: Injected | Expected | None = expected or (effects[0] if effects else None)
+    row = _row(system, truth, expect or ("named" if truth else "clean"), *runs[0])
     row["z_seeds"] = [_z(dg.findings[0] if dg.findings else None, truth, plant) for plant, dg in runs]
     row["ok_seeds"] = [_ok(row["expect"], truth, dg, plant) for plant, dg in runs]
     row["seeds"] = list(seeds)
     return row
 
 
-def _row(system: str, effects: list[Injected], expect: str, plant: Plant, dg: Any) -> dict[str, Any]:
+def _row(system: str, truth: Injected | Expected | None, expect: str, plant: Plant, dg: Any) -> dict[str, Any]:
     """A table row: truth, what was named first with its value, the verdict and the validation RMS."""
     first = dg.findings[0] if dg.findings else None
-    truth = effects[0] if effects else None
     joint = plant.joint_names.index(truth.joint) if truth else int(np.argmax(plant.actuated))
     name = plant.joint_names[joint]
     row = {
@@ -1176,7 +1166,7 @@ def _row(system: str, effects: list[Injected], expect: str, plant: Plant, dg: An
     return row
 
 
-def _z(first: Any, truth: Injected | None, plant: Plant) -> float | None:
+def _z(first: Any, truth: Injected | Expected | None, plant: Plant) -> float | None:
     """(value - truth) / std of the first finding where it is the hidden effect itself (its headline value the
     injected size; a gain's is 1 + size), on its joint (or among the equivalent ones it names), with a std; None
     otherwise (an armature named on joint 7 for one hidden on joint 6 says nothing of that one's size)."""
@@ -1187,7 +1177,7 @@ def _z(first: Any, truth: Injected | None, plant: Plant) -> float | None:
     return float((first.value - truth.value) / first.std)
 
 
-def _target(truth: Injected, plant: Plant) -> str:
+def _target(truth: Injected | Expected, plant: Plant) -> str:
     """What a finding of the hidden effect names: its joint, or for a payload the joint's body."""
     return plant.body_names[plant.joint_names.index(truth.joint)] if truth.effect == "payload" else truth.joint
 
@@ -1197,7 +1187,7 @@ def _names(f: Any) -> set[tuple[str, str]]:
     return {(f.effect, f.target)} | {(c["effect"], c["target"]) for c in f.confounded_with}
 
 
-def _ok(expect: str, truth: Injected | None, dg: Any, plant: Plant) -> bool:
+def _ok(expect: str, truth: Injected | Expected | None, dg: Any, plant: Plant) -> bool:
     if expect == "clean":
         return bool(dg.verdict == "no_discrepancy")
     if expect == "unexplained":
