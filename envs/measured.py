@@ -25,6 +25,7 @@ parameter asked for; `envs.split.split_train_validation` holds data out by file 
 from __future__ import annotations
 
 import codecs
+import contextvars
 import csv
 import gzip
 import hashlib
@@ -84,6 +85,8 @@ _MARKUP = (  # a tag in the first 64 KiB of a file that begins with '<': what th
 )
 _BLOCK_ROWS = 200_000  # rows read at a time: a block of a wide file is a few tens of MB
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
+# the file line of each data row of the file being read, where blank lines (skipped) shift them from row + 2
+_ROW_LINES: contextvars.ContextVar[np.ndarray | None] = contextvars.ContextVar("_ROW_LINES", default=None)
 _TORQUE_LIMIT_FACTOR = 10.0  # a torque whose 99th-percentile size is this many times the actuator's limit is in
 # other units (mN m, N cm) or another column: a motor's peak torque is a few times its rated one, not ten
 _MAX_TORQUE = 1e6  # [N m] (or [N]): no robot joint carries more; the bound where an actuator has no limit
@@ -165,6 +168,65 @@ def read_measured(
     sources, ignored = _resolve_columns(plant, header, columns, src)
     labels = _labels(sources)
     arrays, values, rows_read, time_origin = _read_body(file, header, delimiter, sources, labels, plant)
+    token = _ROW_LINES.set(_row_lines(file, rows_read))
+    try:
+        return _checked(
+            src,
+            plant,
+            sources,
+            ignored,
+            labels,
+            arrays,
+            values,
+            rows_read,
+            time_origin,
+            repair=repair,
+            resample=resample,
+            max_speed=max_speed,
+            min_samples=min_samples,
+        )
+    finally:
+        _ROW_LINES.reset(token)
+
+
+def _line(row: int) -> int:
+    """The line of the file that data row `row` of the file being read is on (the header is line 1)."""
+    lines = _ROW_LINES.get()
+    return row + 2 if lines is None else int(lines[row])
+
+
+def _row_lines(file: _TextFile, rows: int) -> np.ndarray | None:
+    """(rows,) the line of each data row where the file has blank lines among its rows (skipped by the reader);
+    None where it has none (each row on line row + 2): one more pass over such a file only."""
+    if _line_count(file) - 1 == rows:
+        return None
+    lines = []
+    with file.open() as f:  # the lines as `_read_body` reads them
+        f.readline()
+        for number, text in enumerate(f, start=2):
+            if text.rstrip("\r\n"):
+                lines.append(number)
+    return np.array(lines[:rows]) if len(lines) >= rows else None
+
+
+def _checked(
+    src: str,
+    plant: Plant,
+    sources: dict[str, _Column],
+    ignored: list[str],
+    labels: dict[str, str],
+    arrays: dict[str, np.ndarray | None],
+    values: dict[str, np.ndarray],
+    rows_read: int,
+    time_origin: float,
+    *,
+    repair: bool,
+    resample: bool,
+    max_speed: float | None,
+    min_samples: int,
+) -> Dataset:
+    """`read_measured` once the file `src` is read (`_read_body`'s arrays): its checks and repairs, and the
+    dataset."""
     _check_length(rows_read, max(min_samples, 2), src, "rows")  # first: the checks below need a time step
     _check_finite(values, labels, src)
     t = values["time"]
@@ -465,6 +527,11 @@ def _read_header(file: _TextFile) -> tuple[list[str], str]:
             f"{path}: line 1 is a comment ({first.strip()[:40]!r}); the header row of column names must be line 1: "
             "remove the comment lines above it"
         )
+    if first.strip().lower().startswith("sep=") and len(first.strip()) <= 5:
+        raise DataError(
+            f"{path}: line 1 is a spreadsheet's delimiter line ({first.strip()!r}); the header row of column names "
+            "must be line 1: remove that line"
+        )
     delimiter = max((",", ";", "\t"), key=first.count)
     try:
         header = [h.strip() for h in next(csv.reader([first], delimiter=delimiter), [])]
@@ -472,7 +539,20 @@ def _read_header(file: _TextFile) -> tuple[list[str], str]:
         raise DataError(f"{path}: the header row (line 1) cannot be read as CSV text: {err}") from None
     if not header or header == [""]:
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
+    if all(_is_number(h) for h in header):
+        raise DataError(
+            f"{path}: line 1 holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), not "
+            "column names: the file has no header row; add one naming its columns (time, q_<joint>, tau_<joint>, ...)"
+        )
     return header, delimiter
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _line_count(file: _TextFile) -> int:
@@ -913,7 +993,7 @@ def _check_finite(values: dict[str, np.ndarray], labels: dict[str, str], src: st
         if bad.size:
             k = int(bad[0])
             more = f" (and {bad.size - 1} more rows)" if bad.size > 1 else ""
-            raise DataError(f"{src}: {labels[name]}, row {k} (line {k + 2}): {x[k]} is not a finite number{more}")
+            raise DataError(f"{src}: {labels[name]}, row {k} (line {_line(k)}): {x[k]} is not a finite number{more}")
 
 
 def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
@@ -924,13 +1004,13 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
     if back.size and (not same.size or back[0] < same[0]):
         k = int(back[0]) + 1
         raise DataError(
-            f"{src}: {label} goes backwards at row {k} (line {k + 2}): {t[k]:.9g} s after {t[k - 1]:.9g} s; "
+            f"{src}: {label} goes backwards at row {k} (line {_line(k)}): {t[k]:.9g} s after {t[k - 1]:.9g} s; "
             "time must be strictly increasing (concatenated or unsorted logs?)"
         )
     if same.size:
         k = int(same[0]) + 1
         raise DataError(
-            f"{src}: {label} repeats {t[k]:.9g} s at rows {k - 1} and {k} (lines {k + 1} and {k + 2}); "
+            f"{src}: {label} repeats {t[k]:.9g} s at rows {k - 1} and {k} (lines {_line(k - 1)} and {_line(k)}); "
             f"time must be strictly increasing ({same.size} duplicate time stamp(s) in all)"
         )
 
@@ -938,7 +1018,7 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
 def _check_time_unit(t: np.ndarray, step: float, column: _Column, label: str, src: str) -> None:
     """Refuse sampling slower than `_MIN_SAMPLE_RATE_HZ`: no joint log is that slow, a time in ms or us is, and so is
     a sample index (0, 1, 2, ...). The hint gives the mapping as a command-line override."""
-    if not step > 0 or 1.0 / step >= _MIN_SAMPLE_RATE_HZ:
+    if not step > 0 or 1.0 / step >= _MIN_SAMPLE_RATE_HZ * (1 - 1e-9):  # a 0.2 s step is 5 Hz, not slower
         return
     if step == 1.0 and t[0] == np.round(t[0]) and np.all(np.diff(t) == 1.0):
         raise DataError(
@@ -1013,7 +1093,7 @@ def _check_angle_units(
                 else ""
             )
             raise DataError(
-                f"{src}: {lq} spans [{x_lo:.4g}, {x_hi:.4g}] (row {k}, line {k + 2}: {q[k, j]:.4g}), far beyond "
+                f"{src}: {lq} spans [{x_lo:.4g}, {x_hi:.4g}] (row {k}, line {_line(k)}: {q[k, j]:.4g}), far beyond "
                 f"the joint range [{lo:.4g}, {hi:.4g}] rad of {plant.name}, and inside it when read as degrees: the "
                 f"angle looks like degrees (then give the scale {_DEGREE:.6g}){other}; the harness expects radians"
             )
@@ -1067,7 +1147,7 @@ def _check_torque_units(
             else:
                 hint = "a wrong unit or another column? Give a scale in the column mapping"
             raise DataError(
-                f"{src}: {labels[ours]} is {typical:.4g} {unit} or more on 1 % of the rows (row {k}, line {k + 2}: "
+                f"{src}: {labels[ours]} is {typical:.4g} {unit} or more on 1 % of the rows (row {k}, line {_line(k)}: "
                 f"{x[k, j]:.4g}), {against}; {hint}"
             )
 
@@ -1134,7 +1214,7 @@ def _fit_joint_ranges(
         raise DataError(
             f"{src}: {label} leaves the joint range [{lo:.4g}, {hi:.4g}] {unit_name} of {plant.name} by more than "
             f"{_RANGE_FAR * unit:g} {unit_name} on {bad.size} of "
-            f"{len(x)} rows (the farthest row {rows[k]}, line {rows[k] + 2}, t = {t[k]:.6g} s: {x[k]:.4g}); the "
+            f"{len(x)} rows (the farthest row {rows[k]}, line {_line(rows[k])}, t = {t[k]:.6g} s: {x[k]:.4g}); the "
             f"model's limit would stop it there: {why}"
         )
     return repairs
@@ -1251,7 +1331,8 @@ def _repair_joint(
     dt = np.diff(t)
 
     def at(k: int) -> str:
-        return f"between rows {rows[k]} and {rows[k + 1]} (lines {rows[k] + 2}-{rows[k + 1] + 2}, t = {t[k + 1]:.6g} s)"
+        lines = f"{_line(rows[k])}-{_line(rows[k + 1])}"
+        return f"between rows {rows[k]} and {rows[k + 1]} (lines {lines}, t = {t[k + 1]:.6g} s)"
 
     if not repair:
         k = int(flagged[0])
@@ -1377,7 +1458,7 @@ def _torque_spikes(
     edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
     runs = list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1, strict=True))
     k = int(runs[0][0])
-    where = f"row {rows[k]} (line {rows[k] + 2}, t = {t[k]:.6g} s)"
+    where = f"row {rows[k]} (line {_line(rows[k])}, t = {t[k]:.6g} s)"
     what = f"{label} is {x[k]:.4g} at {where}, far outside its own range ({centre:.4g} +- {reach:.3g} for 99 % of rows)"
     longest = max(b - a + 1 for a, b in runs)
     if not repair:
@@ -1404,7 +1485,7 @@ def _torque_spikes(
 
 def _where(rows: np.ndarray, k: int) -> str:
     """The file position of the sample after step k."""
-    return f"row {rows[k + 1]} (line {rows[k + 1] + 2})"
+    return f"row {rows[k + 1]} (line {_line(rows[k + 1])})"
 
 
 def _check_gaps(t: np.ndarray, rows: np.ndarray, label: str, src: str) -> None:

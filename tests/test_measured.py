@@ -247,6 +247,8 @@ def test_non_numeric_cell_is_located(tmp_path: Path, plant: Plant, cell: str) ->
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"no data rows after the header"),
         ("time,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n0,1,2,3,4\n1,2,3\n", r"row 1 \(line 3\) has 3 fields"),
         ("# logged 2026-11-30\ntime,q_shoulder,q_elbow,tau_shoulder,tau_elbow\n", r"line 1 is a comment \('# logged"),
+        ("sep=;\ntime;q_shoulder;q_elbow;tau_shoulder;tau_elbow\n0;1;2;3;4\n", r"line 1 is a spreadsheet's delimiter"),
+        ("0,1,2,3,4\n0.002,1,2,3,4\n", r"line 1 holds numbers \(0, 1, 2, \.\.\.\), not column names: the file has no"),
         (
             "time;q_shoulder;q_elbow;tau_shoulder;tau_elbow\n0;0,5;1;2;3\n",
             r"column 'q_shoulder', row 0 \(line 2\): '0,5' is not a number \(a decimal comma\?",
@@ -288,6 +290,37 @@ def test_nan_and_inf_are_located(tmp_path: Path, plant: Plant, value: float) -> 
     path = write(tmp_path / "bad.csv", cols)
     with pytest.raises(DataError, match=r"bad\.csv: column 'q_elbow', row 123 \(line 125\): .* 1 more rows"):
         read_measured(path, plant)
+
+
+@pytest.mark.parametrize(
+    ("defect", "message"),
+    [
+        ("nan", r"column 'q_elbow', row 123 \(line 128\): nan is not a finite number"),
+        ("back", r"column 'time' goes backwards at row 300 \(line 305\)"),
+        ("repeat", r"column 'time' repeats .* at rows 299 and 300 \(lines 304 and 305\)"),
+        ("gap", r"gap of 102 ms before row 600 \(line 605\)"),
+        ("spike", r"column 'tau_elbow' is 1e\+30 at row 420 \(line 425"),
+    ],
+)
+def test_a_row_is_named_by_its_own_line_after_blank_lines(
+    tmp_path: Path, plant: Plant, defect: str, message: str
+) -> None:
+    """Blank lines are skipped when a file is read; every message still gives the line the row is on (three blank
+    lines after row 99 put row k on line k + 5 from there), not row + 2."""
+    cols = table()
+    if defect == "nan":
+        cols["q_elbow"][123] = np.nan
+    elif defect in ("back", "repeat"):
+        cols["time"][300] = cols["time"][298 if defect == "back" else 299]
+    elif defect == "gap":
+        cols["time"][600:] += 0.1
+    else:
+        cols["tau_elbow"][420] = 1e30
+    path = write(tmp_path / "blank.csv", cols)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([*lines[:101], "", "", "", *lines[101:]]) + "\n")  # after row 99 (line 101)
+    with pytest.raises(DataError, match=message):
+        read_measured(path, plant, repair=False)
 
 
 def test_time_going_backwards_is_refused(tmp_path: Path, plant: Plant) -> None:
