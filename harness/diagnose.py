@@ -145,6 +145,9 @@ def _with_torque_lead(datasets: list[Dataset], lead: float) -> list[Dataset]:
     return [dataclasses.replace(d, tau_lead_s=lead) for d in datasets]
 
 
+SLOW_LOG_HZ = 100.0  # a joint log sampled slower than this may be timed in ms: said where its rate is refused
+
+
 def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     """Refuse a filter frequency at or above the Nyquist frequency of the slowest file, or below
     `MIN_FILTER_CYCLES` cycles over the shortest one, or a re-start window shorter than `MIN_WINDOW_SAMPLES` of its
@@ -157,9 +160,15 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
     lowest = MIN_FILTER_CYCLES / span
     for name, value in (state_cutoff(cfg), _setting(cfg, "band_hz") or ("data.band_hz", None)):
         if value is not None and float(value) >= nyquist:
+            unit = (  # a log timed in ms (a few kHz) reads as a few Hz
+                f"; or check that its time column is in seconds (timed in milliseconds, it would be sampled at "
+                f"{2e3 * nyquist:g} Hz)"
+                if 2 * nyquist < SLOW_LOG_HZ
+                else ""
+            )
             raise ConfigError(
                 f"{name}={float(value):g} Hz is not below the Nyquist frequency {nyquist:g} Hz of "
-                f"{slowest.source} (sampled at {2 * nyquist:g} Hz)"
+                f"{slowest.source} (sampled at {2 * nyquist:g} Hz){unit}"
             )
         if value is not None and float(value) < lowest:
             raise ConfigError(
@@ -169,7 +178,7 @@ def _check_filters(cfg: DictConfig, datasets: list[Dataset]) -> None:
                 "or check that the time column is in seconds (a log timed in minutes lasts a sixtieth as long)"
             )
     window = float(cfg.diagnose.window_s)
-    if window < MIN_WINDOW_SAMPLES * slowest.dt:
+    if window < MIN_WINDOW_SAMPLES * slowest.dt * (1 - 1e-9):  # 0.25 s is 5 samples at 20 Hz, not fewer
         raise ConfigError(
             f"diagnose.window_s={window:g} s is shorter than {MIN_WINDOW_SAMPLES} samples of {slowest.source} "
             f"({MIN_WINDOW_SAMPLES * slowest.dt:.3g} s at {1 / slowest.dt:g} Hz): a re-started simulation needs "

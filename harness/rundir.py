@@ -172,8 +172,8 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
     if value is not None and target.is_dir() and key == "hydra.run.dir=":
         if (target / LOCK_NAME).exists():
             os.close(_lock(target / LOCK_NAME, target))  # raises while another run holds it
-        _refuse_held(target, outputs, "overwrite=true" in argv)
-    if value is not None and target.is_dir() and key == "hydra.sweep.dir=" and "overwrite=true" not in argv:
+        _refuse_held(target, outputs, _overwrite(argv))
+    if value is not None and target.is_dir() and key == "hydra.sweep.dir=" and not _overwrite(argv):
         # Hydra rewrites multirun.yaml and each job folder's .hydra/ before any job could refuse its folder
         done = sorted(str(p.relative_to(target)) for name in RESULTS_FILES for p in target.glob(f"*/{name}"))
         if done:
@@ -182,6 +182,13 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
                 f"{', ...' if len(done) > 3 else ''}); pass overwrite=true to replace them, or choose another "
                 "hydra.sweep.dir"
             )
+
+
+def _overwrite(argv: Sequence[str]) -> bool:
+    """Whether a command line sets `overwrite` true, as Hydra reads it: `overwrite=true` in any case (`True`,
+    `TRUE`), also as `+overwrite=` or `++overwrite=`; the last setting counts."""
+    values = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("overwrite=")]
+    return bool(values) and values[-1].strip().lower() == "true"
 
 
 def _folder_override(argv: Sequence[str]) -> tuple[str, str | None]:
@@ -330,7 +337,7 @@ def kept_on_failure(argv: Sequence[str], outputs: Sequence[str]) -> Iterator[Non
     there after a failure, the `.hydra/` files and logs are put back as they were (new ones removed)."""
     key, value = _folder_override(argv)
     target = Path(value) if value is not None and key == "hydra.run.dir=" else None
-    if target is None or "overwrite=true" not in argv or not outputs or not (target / outputs[-1]).is_file():
+    if target is None or not _overwrite(argv) or not outputs or not (target / outputs[-1]).is_file():
         yield
         return
     last_path = target / outputs[-1]

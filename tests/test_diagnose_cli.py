@@ -183,6 +183,29 @@ def test_a_filter_at_the_nyquist_frequency_of_the_files_is_refused(
     assert not any(tmp_path.iterdir())
 
 
+def test_a_slow_rate_that_a_time_in_milliseconds_would_explain_is_said_so(
+    csv_files: list[Path], tmp_path: Path
+) -> None:
+    """A log sampled at 8 kHz and timed in milliseconds reads as 8 Hz, fast enough for the unit check (5 Hz); the
+    band's refusal blamed the setting alone. It now says what the rate would be in ms. A fast log's refusal does not
+    (at 500 Hz a 300 Hz band is the setting's fault), and a window of exactly 5 samples is not refused as shorter."""
+    import dataclasses
+
+    from envs.measured import read_measured
+
+    data = read_measured(csv_files[0], load_plant("pendulum"))
+    slow = dataclasses.replace(data, time=np.arange(len(data.time)) * 0.125)  # 8 kHz, its time read in ms
+    cfg = _config(csv_files, tmp_path)
+    with pytest.raises(ConfigError, match=r"sampled at 8 Hz\); or check that its time column is in seconds .* 8000 Hz"):
+        cli._check_filters(cfg, [slow])
+    with pytest.raises(ConfigError, match=r"sampled at 500 Hz\)$"):
+        cli._check_filters(_config(csv_files, tmp_path, "diagnose.band_hz=300"), [data])
+    coarse = dataclasses.replace(data, time=np.arange(len(data.time)) * 0.05)  # 20 Hz: 0.25 s is 5 samples
+    cli._check_filters(
+        _config(csv_files, tmp_path, "diagnose.band_hz=2", "data.cutoff_hz=2", "diagnose.window_s=0.25"), [coarse]
+    )
+
+
 def test_a_state_cut_off_above_an_eighth_of_the_files_rate_is_refused_or_capped(
     csv_files: list[Path], tmp_path: Path
 ) -> None:

@@ -175,6 +175,33 @@ def test_a_folder_holding_a_users_results_is_refused_without_overwrite(tmp_path:
     assert not (tmp_path / "failure.json").exists()  # the folder is not this run's: nothing added to it
 
 
+@pytest.mark.parametrize(
+    ("args", "allowed"),
+    [
+        (["overwrite=true"], True),
+        (["overwrite=True"], True),
+        (["++overwrite=TRUE"], True),
+        (["+overwrite=true"], True),
+        (["overwrite=true", "overwrite=false"], False),  # the last setting counts, as in Hydra
+        (["overwrite=false"], False),
+        (["overwrite_x=true"], False),
+        ([], False),
+    ],
+)
+def test_overwrite_is_read_as_hydra_reads_it(tmp_path: Path, args: list[str], allowed: bool) -> None:
+    """`overwrite=True` and `++overwrite=true` were refused with "pass overwrite=true": the check matched the
+    literal text, while Hydra reads any case and the `+`/`++` forms."""
+    from harness.rundir import check_output_override
+
+    (tmp_path / "results.json").write_text('{"mine": true}')
+    argv = ["system=pendulum", f"hydra.run.dir={tmp_path}", *args]
+    if allowed:
+        check_output_override(argv, ("results.json",))
+    else:
+        with pytest.raises(RunFolderError, match=r"already holds results\.json.*pass overwrite=true"):
+            check_output_override(argv, ("results.json",))
+
+
 def test_an_overwrite_that_fails_before_it_starts_leaves_the_finished_runs_record(tmp_path: Path) -> None:
     """overwrite=true with a value refused inside the run (after Hydra wrote its files): the finished run's
     results stayed, but its `.hydra/` config and log were the failed run's, which described other outputs."""
