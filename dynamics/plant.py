@@ -67,7 +67,7 @@ def mjcf_path(system: str) -> Path:
         ValueError: unknown system name (the message lists the valid ones) or missing file.
     """
     candidate = Path(system)
-    if candidate.suffix.lower() in (".xml", *URDF_SUFFIXES):
+    if candidate.suffix.lower() in (".xml", ".mjcf", *URDF_SUFFIXES):  # MuJoCo compiles an .mjcf as it does .xml
         if candidate.is_dir():
             raise ValueError(f"model path is a directory, not a file: {candidate}")
         if not candidate.is_file():
@@ -78,7 +78,7 @@ def mjcf_path(system: str) -> Path:
             raise ValueError(f"model path is a directory, not a file: {candidate} (give the .xml MJCF or .urdf in it)")
         if candidate.is_file():
             raise ValueError(
-                f"model file {candidate} is neither an MJCF (.xml) nor a URDF (.urdf): its suffix "
+                f"model file {candidate} is neither an MJCF (.xml, .mjcf) nor a URDF (.urdf): its suffix "
                 f"{candidate.suffix or '(none)'!r} names no model format (a log goes to sysid-diagnose data.path=...)"
             )
         raise ValueError(
@@ -341,6 +341,49 @@ def _check_polynomials(path: Path, m: mujoco.MjModel) -> None:
             )
 
 
+# (MjModel field, what it is, the kind of element it belongs to): every number the dynamics read from the model
+_FINITE_FIELDS = (
+    ("body_mass", "mass", mujoco.mjtObj.mjOBJ_BODY),
+    ("body_inertia", "inertia", mujoco.mjtObj.mjOBJ_BODY),
+    ("body_ipos", "centre of mass", mujoco.mjtObj.mjOBJ_BODY),
+    ("body_iquat", "inertial frame", mujoco.mjtObj.mjOBJ_BODY),
+    ("body_pos", "pos", mujoco.mjtObj.mjOBJ_BODY),
+    ("body_quat", "orientation", mujoco.mjtObj.mjOBJ_BODY),
+    ("jnt_pos", "pos", mujoco.mjtObj.mjOBJ_JOINT),
+    ("jnt_axis", "axis", mujoco.mjtObj.mjOBJ_JOINT),
+    ("jnt_range", "range", mujoco.mjtObj.mjOBJ_JOINT),
+    ("jnt_stiffness", "stiffness", mujoco.mjtObj.mjOBJ_JOINT),
+    ("dof_armature", "armature", mujoco.mjtObj.mjOBJ_DOF),
+    ("dof_damping", "damping", mujoco.mjtObj.mjOBJ_DOF),
+    ("dof_frictionloss", "frictionloss", mujoco.mjtObj.mjOBJ_DOF),
+    ("actuator_gear", "gear", mujoco.mjtObj.mjOBJ_ACTUATOR),
+    ("actuator_gainprm", "gain", mujoco.mjtObj.mjOBJ_ACTUATOR),
+    ("actuator_biasprm", "bias", mujoco.mjtObj.mjOBJ_ACTUATOR),
+)
+
+
+def _check_finite(path: Path, m: mujoco.MjModel) -> None:
+    """Refuse a model with a NaN or inf among the numbers its dynamics read (MuJoCo compiles `mass="nan"`), or a
+    physics step that is not positive: a NaN there passed the load check (a NaN difference is no difference) and
+    came out later as a diverged simulation or a failed integer conversion. Named by element and attribute."""
+    for field, what, kind in _FINITE_FIELDS:
+        values = np.asarray(getattr(m, field), dtype=float)
+        values = values.reshape(len(values), -1) if values.size else values.reshape(0, 1)
+        bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
+        if bad.size:
+            i = int(bad[0])
+            if kind == mujoco.mjtObj.mjOBJ_DOF:  # a dof's numbers are its joint's attributes
+                kind, i = mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[i])
+            element = kind.name.removeprefix("mjOBJ_").lower()
+            shown = " ".join(f"{v:g}" for v in values[int(bad[0])])
+            raise ModelError(f"{path}: {element} {_name(m, kind, i)!r} has a {what} of {shown}, not finite numbers")
+    for what, value in (("gravity", m.opt.gravity), ("timestep", [m.opt.timestep])):
+        if not np.all(np.isfinite(value)):
+            raise ModelError(f"{path}: <option {what}> is {' '.join(f'{v:g}' for v in value)}, not finite numbers")
+    if not m.opt.timestep > 0:
+        raise ModelError(f'{path}: <option timestep="{m.opt.timestep:g}"> must be > 0 (the physics step [s])')
+
+
 def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     """Refuse what the rigid-body regressor does not model: other joint types and joint couplings."""
     if m.njnt == 0:
@@ -353,7 +396,9 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     ]
     if bad:
         raise ModelError(f"{path}: only hinge and slide joints are supported (no free or ball joints); found {bad}")
-    active = [e for e in range(m.neq) if m.eq_active0[e]]  # an inactive one applies no force unless a user turns it on
+    # an inactive one applies no force unless a user turns it on; none does under <flag equality="disable"/>
+    equality_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+    active = [e for e in range(m.neq) if m.eq_active0[e] and equality_on]
     if active:
         kinds = [mujoco.mjtEq(m.eq_type[e]).name.removeprefix("mjEQ_").lower() for e in active]
         named = [f"{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e)!r} ({k})" for e, k in zip(active, kinds, strict=True)]
@@ -363,6 +408,14 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
         )
     if m.ntendon:
         raise ModelError(f"{path}: {_tendons(m)}: tendons are not supported; drive each joint by its own actuator")
+    _check_finite(path, m)
+    plugins = [a for a in range(m.nu) if m.actuator_plugin[a] >= 0]
+    if plugins:  # its force is the plugin's own law (a PID's state): read as a motor of gain 1, it would be wrong
+        acts = [_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in plugins]
+        raise ModelError(
+            f"{path}: actuator(s) {acts} are plugins (<actuator><plugin>): their force is the plugin's own law, "
+            "which the harness does not read; drive the joint with a motor, position or general actuator"
+        )
     _check_polynomials(path, m)
     for kind in ("damping", "armature"):  # MuJoCo 4: on the transmission, gear^2 times it on the joint
         values = getattr(m, f"actuator_{kind}")  # (nu,)

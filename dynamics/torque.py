@@ -109,8 +109,15 @@ def inverse_dynamics(plant: Plant | mujoco.MjModel, q: np.ndarray, dq: np.ndarra
     m = plant.mj_model if isinstance(plant, Plant) else plant
     d = mujoco.MjData(m)
     out = np.empty_like(np.asarray(q, dtype=float))
-    for k in range(len(q)):
-        d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
-        mujoco.mj_inverse(m, d)
-        out[k] = d.qfrc_inverse
+    flags = int(m.opt.enableflags)
+    # <flag invdiscrete>: mj_inverse would read qacc as the step's discrete acceleration (and refuses RK4); these
+    # are the states' own, continuous ones. The flag changes nothing in forward simulation: off for this call only
+    m.opt.enableflags = flags & ~int(mujoco.mjtEnableBit.mjENBL_INVDISCRETE)
+    try:
+        for k in range(len(q)):
+            d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
+            mujoco.mj_inverse(m, d)
+            out[k] = d.qfrc_inverse
+    finally:
+        m.opt.enableflags = flags
     return out

@@ -241,6 +241,92 @@ def test_an_inactive_equality_applies_no_force_and_is_no_coupling(tmp_path: Path
     )
 
 
+def test_a_disabled_equality_flag_applies_no_coupling(tmp_path: Path) -> None:
+    """<flag equality="disable"/>: MuJoCo applies no equality; such a model was refused as coupled."""
+    xml = _write_form("diaginertia_quat", tmp_path).read_text()
+    extra = '<equality><joint name="couple" joint1="j1" joint2="j2"/></equality>'
+    off = xml.replace("</mujoco>", extra + "</mujoco>").replace(
+        '<compiler angle="radian"/>', '<compiler angle="radian"/><option><flag equality="disable"/></option>'
+    )
+    path = tmp_path / "off.xml"
+    path.write_text(off)
+    plant = load_plant(path)
+    q, dq, ddq = random_states(plant, np.random.default_rng(3), 10)
+    np.testing.assert_allclose(
+        joint_torque(plant, q, dq, ddq, coulomb=False)[0], inverse_dynamics(plant.mj_model, q, dq, ddq), atol=1e-8
+    )
+
+
+_MOTORS = '<actuator><motor joint="j1" ctrlrange="-5 5"/><motor joint="j2" ctrlrange="-5 5"/></actuator>'
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            (
+                '<joint name="j2" type="hinge" axis="0 1 0"/>',
+                '<joint name="j2" type="hinge" axis="0 1 0" armature="nan"/>',
+            ),
+            r"joint 'j2' has a armature of nan, not finite numbers",
+        ),
+        (
+            ('<body name="link2" pos="0.3 0 0"', '<body name="link2" pos="nan 0 0"'),
+            r"body 'link2' has a pos of nan 0 0, not finite numbers",
+        ),
+        (
+            ('<compiler angle="radian"/>', '<compiler angle="radian"/><option gravity="0 0 nan"/>'),
+            r"<option gravity> is 0 0 nan, not finite numbers",
+        ),
+        (
+            ('<compiler angle="radian"/>', '<compiler angle="radian"/><option timestep="0"/>'),
+            r'<option timestep="0"> must be > 0',
+        ),
+        (
+            (
+                _MOTORS,
+                '<actuator><plugin joint="j1" plugin="mujoco.pid" instance="pid"/><motor joint="j2"/></actuator>'
+                '<extension><plugin plugin="mujoco.pid"><instance name="pid"><config key="kp" value="200"/></instance>'
+                "</plugin></extension>",
+            ),
+            r"actuator\(s\) \['actuator0'\] are plugins \(<actuator><plugin>\): their force is the plugin's own law",
+        ),
+    ],
+)
+def test_a_model_the_dynamics_cannot_read_is_refused_by_element(
+    tmp_path: Path, edit: tuple[str, str], message: str
+) -> None:
+    """A NaN in the model (MuJoCo compiles `armature="nan"`) passed the load check, a NaN difference being no
+    difference, and failed later as a diverged simulation or "cannot convert float NaN to integer"; a zero step
+    divided by zero; a PID plugin actuator was read as a motor of gain 1, and its run reported wrong numbers."""
+    xml = _write_form("diaginertia_quat", tmp_path).read_text().replace("</mujoco>", _MOTORS + "</mujoco>")
+    old, new = edit
+    assert old in xml
+    path = tmp_path / "bad.xml"
+    path.write_text(xml.replace(old, new))
+    with pytest.raises(ModelError, match=message):
+        load_plant(path)
+
+
+@pytest.mark.parametrize("integrator", ["implicitfast", "RK4"])
+def test_the_invdiscrete_flag_leaves_the_inverse_dynamics_continuous(tmp_path: Path, integrator: str) -> None:
+    """<flag invdiscrete="enable"/> makes mj_inverse read qacc as a step's discrete acceleration (refused under RK4
+    with a FatalError); it changes nothing in forward simulation. The harness's accelerations are continuous: such a
+    model was refused by the load check (implicitfast with damping) or crashed (RK4)."""
+    xml = _write_form("offset_tilted_joints", tmp_path).read_text().replace("</mujoco>", _MOTORS + "</mujoco>")
+    head = f'<compiler angle="radian"/><option integrator="{integrator}"><flag invdiscrete="enable"/></option>'
+    path = tmp_path / "inv.xml"
+    path.write_text(xml.replace('<compiler angle="radian"/>', head))
+    plant = load_plant(path)
+    assert plant.mj_model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_INVDISCRETE)  # the model's own, kept
+    q, dq, ddq = random_states(plant, np.random.default_rng(3), 10)
+    np.testing.assert_allclose(
+        joint_torque(plant, q, dq, ddq, coulomb=False)[0],
+        inverse_dynamics(_without_constraints(plant.mj_model), q, dq, ddq),
+        atol=1e-8,
+    )
+
+
 @pytest.mark.parametrize("kind", ["damping", "armature"])
 def test_an_actuators_own_damping_or_armature_is_named_with_the_joints_value(tmp_path: Path, kind: str) -> None:
     """MuJoCo 4's actuator damping and armature (gear^2 times it on the joint) were refused as an unnamed
@@ -318,8 +404,11 @@ def test_a_model_path_that_is_no_model_file_says_what_it_is(tmp_path: Path) -> N
         load_plant(tmp_path / "robot")
     log = tmp_path / "run.csv"
     log.write_text("time,q_j\n0,0\n")
-    with pytest.raises(ValueError, match=r"run\.csv is neither an MJCF \(\.xml\) nor a URDF .*suffix '\.csv'"):
+    with pytest.raises(ValueError, match=r"run\.csv is neither an MJCF \(\.xml, \.mjcf\) nor a URDF .*suffix '\.csv'"):
         load_plant(log)
+    mjcf = tmp_path / "arm.mjcf"  # MuJoCo compiles it as an .xml: it was refused as no model format
+    mjcf.write_text(_write_form("diaginertia_quat", tmp_path).read_text())
+    assert load_plant(mjcf).joint_names == ("j1", "j2")
     with pytest.raises(ValueError, match=r"unknown system 'tow_link'; valid choices"):
         load_plant("tow_link")
 
