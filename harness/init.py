@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
+import re
 import sys
 from pathlib import Path
 
@@ -25,18 +27,29 @@ from harness.validate import check_driven
 __all__ = ["main", "system_config_text"]
 
 
+_PLAIN = re.compile(r"[A-Za-z_/.~][A-Za-z0-9_./~+-]*")  # a string YAML reads back as itself, unquoted
+
+
 def _value(value: object) -> str:
+    """`value` as YAML text that reads back as it is: a string that YAML would read otherwise (a path with a
+    colon, a `#` that starts a comment, a space, `true`, a number) in double quotes."""
+    if value is None:
+        return "null"
     if isinstance(value, list):
         return "[" + ", ".join(_value(v) for v in value) + "]"
     if isinstance(value, float):
         return f"{value:.6g}"
     if isinstance(value, bool):
         return "true" if value else "false"
+    if isinstance(value, str):
+        keyword = value.lower() in {"true", "false", "yes", "no", "on", "off", "null", "~"}
+        return value if _PLAIN.fullmatch(value) and not keyword else json.dumps(value)
     return str(value)
 
 
-def system_config_text(model: Path) -> str:
-    """The YAML text: the auto config's comments, each null replaced by the model's value."""
+def system_config_text(model: Path, system: str | None = None) -> str:
+    """The YAML text: the auto config's comments, each null replaced by the model's value. `system`: the name
+    the config is chosen by (its file's stem; default the model's)."""
     plant = load_plant(model)
     check_driven(plant)  # the config would name a model sysid-run then refuses
     auto = OmegaConf.load(CONF_DIR / "system" / "auto.yaml")
@@ -44,7 +57,7 @@ def system_config_text(model: Path) -> str:
     resolved = OmegaConf.create(OmegaConf.to_container(resolve_system(auto, plant)[0], resolve=True))  # type: ignore[arg-type]
     lines = [
         f"# System config for {model.name}, written by sysid-init from the model (edit any value).",
-        f"# Use it with: sysid-run --config-dir <the folder above system/> system={plant.name}",
+        f"# Use it with: sysid-run --config-dir <the folder above system/> system={system or plant.name}",
     ]
     prefix: list[str] = []
     for line in (CONF_DIR / "system" / "auto.yaml").read_text().splitlines():
@@ -82,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     try:
-        text = system_config_text(args.model)
+        text = system_config_text(args.model, None if args.out is None else args.out.stem)
     except (SysIdError, ValueError) as err:
         print(f"sysid-init: error: {err}", file=sys.stderr)
         return 2

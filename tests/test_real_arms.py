@@ -204,6 +204,26 @@ def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "run" / "results.json").read_text())["system"] == results["system"]
 
 
+@pytest.mark.parametrize("folder", ["d: x", "d #1", "true"])
+def test_sysid_init_writes_a_path_yaml_reads_back_and_the_name_hydra_chooses_it_by(
+    tmp_path: Path, folder: str, capsys: pytest.CaptureFixture
+) -> None:
+    """A model under a folder whose name holds ': ' or ' #' was written unquoted: the config then failed to parse
+    (a traceback) or was cut at the '#'. The usage line named the model's stem, which Hydra does not know: it
+    chooses the config by its file's stem."""
+    from harness.init import main
+
+    model = tmp_path / folder / "arm.xml"
+    model.parent.mkdir()
+    model.write_text((REPO / "mjcf" / "two_link.xml").read_text())
+    out = tmp_path / "conf" / "system" / "mine.yaml"
+    assert main([str(model), "--out", str(out)]) == 0, capsys.readouterr().err
+    text = out.read_text()
+    assert "system=mine\n" in text
+    cfg = compose_config(["system=mine"], config_dir=tmp_path / "conf")
+    assert cfg.system.mjcf == str(model.resolve()) and cfg.system.name == "arm"
+
+
 @pytest.mark.parametrize("where", ["folder", "under_a_file"])
 def test_sysid_init_refuses_an_out_it_cannot_write_in_one_line(
     tmp_path: Path, where: str, capsys: pytest.CaptureFixture
