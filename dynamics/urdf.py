@@ -104,7 +104,13 @@ def mjcf_from_urdf(path: Path) -> str:
                 "moves it, which MuJoCo cannot simulate: give it an <inertial> (a small mass and inertia where it is a "
                 "virtual link between two joints)"
             ) from err
-        raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {one_line(err)}") from err
+        hint = (  # MuJoCo's own advice, without where a URDF takes it
+            ' (in a URDF: <mujoco><compiler balanceinertia="true"/></mujoco> inside <robot>; it changes that '
+            "link's inertia, so check the values first)"
+            if "balanceinertia" in str(err)
+            else ""
+        )
+        raise ModelError(f"{path}: MuJoCo cannot compile the URDF: {one_line(err)}{hint}") from err
     for j in range(m.njnt):
         if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             continue

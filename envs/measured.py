@@ -1009,9 +1009,15 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
         )
     if same.size:
         k = int(same[0]) + 1
+        rounded = ""
+        if same.size > 0.1 * len(steps) and np.any(steps > 0):  # most rows repeat a stamp: rounded when written
+            rounded = (
+                f"; most rows repeat a time stamp, which moves in steps of {np.min(steps[steps > 0]):.3g} s: the "
+                "time was written with too few decimals to tell the rows apart; write it with more"
+            )
         raise DataError(
             f"{src}: {label} repeats {t[k]:.9g} s at rows {k - 1} and {k} (lines {_line(k - 1)} and {_line(k)}); "
-            f"time must be strictly increasing ({same.size} duplicate time stamp(s) in all)"
+            f"time must be strictly increasing ({same.size} duplicate time stamp(s) in all){rounded}"
         )
 
 
@@ -1320,7 +1326,11 @@ def _repair_joint(
         d2 -= np.median(d2)
         noise = 1.4826 * float(np.median(np.abs(d2, out=d2), overwrite_input=True)) / np.sqrt(6.0)
         del d2
-    floor = max(_MIN_JUMP, 10.0 * noise)
+    # a step of a count or one more is no jump, however coarse the encoder: where most steps are 0 the noise (a
+    # median) and the running rate are 0, and each count read as a slip no velocity allows
+    moved = np.abs(s[s != 0])
+    resolution = float(moved.min()) if moved.size else 0.0
+    floor = max(_MIN_JUMP, 10.0 * noise, 2.5 * resolution)
     if max_speed is not None:
         _check_max_speed(s, dt_eff, float(max_speed), noise, label=label, src=src)
     bound = np.multiply(dt_eff, speed, out=dt_eff)

@@ -323,6 +323,32 @@ def test_a_row_is_named_by_its_own_line_after_blank_lines(
         read_measured(path, plant, repair=False)
 
 
+def test_a_time_written_with_too_few_decimals_is_said_so(tmp_path: Path, plant: Plant) -> None:
+    """500 Hz stamps written with two decimals: 0.00, 0.00, 0.01, ... The refusal named the first repeat and the
+    count of them, not why."""
+    cols = table()
+    cols["time"] = np.round(cols["time"], 2)
+    with pytest.raises(DataError, match=r"repeats 0 s at rows 0 and 1 .* steps of 0\.01 s: the time was written with"):
+        read_measured(write(tmp_path / "rounded.csv", cols), plant)
+    cols = table()
+    cols["time"][300] = cols["time"][299]  # one repeat is no rounding
+    with pytest.raises(DataError, match=r"1 duplicate time stamp\(s\) in all\)$"):
+        read_measured(write(tmp_path / "once.csv", cols), plant)
+
+
+def test_a_coarsely_quantised_angle_is_read_not_refused_as_slips(tmp_path: Path, plant: Plant) -> None:
+    """An angle logged in steps of 0.05 rad without a velocity column: most steps are 0, so the running rate and
+    the noise were 0 and each count was refused as a jump "no velocity allows (0.02 at 0 rad/s)". A step of a
+    count is read as one; a slip of many counts is still found."""
+    cols = {k: v for k, v in table().items() if not k.startswith("dq_")}
+    cols["q_elbow"] = np.round(cols["q_elbow"] / 0.05) * 0.05
+    data = read_measured(write(tmp_path / "coarse.csv", cols), plant)
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+    cols["q_elbow"][600:] += 0.5  # ten counts at once
+    with pytest.raises(DataError, match=r"column 'q_elbow' jumps by 0\.5 between rows 599 and 600"):
+        read_measured(write(tmp_path / "slip.csv", cols), plant, repair=False)
+
+
 def test_time_going_backwards_is_refused(tmp_path: Path, plant: Plant) -> None:
     cols = table()
     cols["time"][300] = cols["time"][298]

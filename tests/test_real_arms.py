@@ -405,6 +405,34 @@ def test_a_massless_urdf_link_that_a_joint_moves_is_named_with_the_fix(tmp_path:
         load_plant(urdf)
 
 
+def test_an_unbalanced_urdf_inertia_says_where_a_urdf_takes_mujocos_fix(tmp_path: Path) -> None:
+    """MuJoCo says "use 'balanceinertia'" for principal moments that break A + B >= C; a URDF takes that setting in
+    a <mujoco> element, which it did not say. With it there, the URDF loads."""
+    urdf = tmp_path / "thin.urdf"
+    link = (
+        '<link name="{n}"><inertial><origin xyz="0.1 0 0"/><mass value="0.5"/><inertia ixx="{a}" iyy="0.001" '
+        'izz="0.005" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+    )
+    joint = (
+        '<joint name="{n}" type="revolute"><parent link="{p}"/><child link="{c}"/><origin xyz="0 0 {z}"/>'
+        '<axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="2"/></joint>'
+    )
+    body = (
+        '<link name="world"/>'
+        + link.format(n="l1", a="0.003")
+        + link.format(n="l2", a="0.001")
+        + joint.format(n="j1", p="world", c="l1", z="1")
+        + joint.format(n="j2", p="l1", c="l2", z="0.3")
+    )
+    urdf.write_text(f'<robot name="thin">{body}</robot>')
+    with pytest.raises(
+        ModelError, match=r"thin\.urdf: .*balanceinertia.* \(in a URDF: <mujoco><compiler balanceinertia"
+    ):
+        load_plant(urdf)
+    urdf.write_text(f'<robot name="thin"><mujoco><compiler balanceinertia="true"/></mujoco>{body}</robot>')
+    assert load_plant(urdf).joint_names == ("j1", "j2")
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not (ROBOTS / "so_arm100.xml").is_file(), reason="../shared/robots/ is not beside the project")
 def test_clean_data_of_an_arm_with_dry_friction_have_no_discrepancy(tmp_path: Path) -> None:
