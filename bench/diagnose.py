@@ -29,7 +29,9 @@
    numerics). A last reading gives every model the held-out file's own angle zero (`_angle_zeroed`,
    found on that file): the encoders are zeroed wherever each file began, and what a model loses with it known
    is not the zero. `moving` judges each joint only on the rows where it moves (`_moving_rows`): where it rests
-   or turns round its inverse dynamics is a set within +-Fc, not a value.
+   or turns round its inverse dynamics is a set within +-Fc, not a value. Each reading is also pooled over every
+   held-out row of a session (`cross_validated`: each file held out once, weighed by its judged rows), the
+   session's leave-one-file-out RMS, against each lab model's on the same rows.
 3. **What the shared files allow** (`lab_form`): the lab's own model form (`authors.author_regressor`: rigid
    body, rotor inertia through the gear, viscous and atan Coulomb friction) refitted by least squares in the
    judging band, on the same states as the judge, (a) on the other files of the split and (b) on all of the
@@ -162,7 +164,8 @@ def judge(
     the first reading with the calibrated MJCF's joint torque from MuJoCo's `mj_inverse` alone
     (`inverse_dynamics`: `qfrc_inverse`, without the actuators' gain and bias or the file's `sysid_*` custom
     numerics: no torque sensor offset or gain, delay or custom friction law); `moving`: the first reading on each
-    joint's `_moving_rows` only (plus `moving_share`, (nv,) the share of the rows each joint keeps). `ramps`: also
+    joint's `_moving_rows` only (plus `moving_share`, (nv,) the share of the rows each joint keeps); `rows`: the
+    number of rows judged (those the filter trusts), by which a file weighs in a session's pooled RMS. `ramps`: also
     the calibrated model with its friction `widened` to each of these widths [rad/s] (`calibrated_ramp_<width>`),
     in the first two readings."""
     states, measured = _judged_states(data)
@@ -200,6 +203,7 @@ def judge(
             if k in authors or k == "calibrated"
         },
         "moving_share": moving.mean(axis=0).tolist(),
+        "rows": len(measured),
     }
 
 
@@ -317,6 +321,7 @@ def lofo_table(session: str, overrides: tuple[str, ...] = (), *, fewer_files: bo
                 "mujoco_only": judged["mujoco_only"],
                 "moving": judged["moving"],
                 "moving_share": judged["moving_share"],
+                "judged_rows": judged["rows"],
                 "demeaned": {k: v for k, v in judged["demeaned"].items() if k == "calibrated" or k in authors},
                 "angle_zeroed": {k: v[0] for k, v in zeroed.items()},
                 "angle_zero_shift": {k: v[1] for k, v in zeroed.items()},
@@ -506,6 +511,61 @@ def _totals(tables: dict[str, dict[str, Any]], reading: str, model: str) -> tupl
     return total, joints, splits, n
 
 
+POOLED_READINGS = ("torque_rms", "both_filtered", "mujoco_only", "angle_zeroed", "moving")  # pooled per session
+
+
+def cross_validated(table: dict[str, Any], reading: str) -> dict[str, np.ndarray] | None:
+    """Per model judged in `reading` (the calibrated MJCF and each lab model): (nv,) its RMS over every held-out
+    row of every split of `table`, each file held out once (the session's leave-one-file-out RMS: what the issue's
+    "torque RMS on other files of the session" is over all of them), each split weighed by its judged rows (in
+    `moving`, the rows each joint keeps). None for tables whose splits do not carry their row counts."""
+    splits = table["splits"]
+    if not all("judged_rows" in s and reading in s for s in splits):
+        return None
+    weights = np.array([np.full(len(table["joints"]), s["judged_rows"], float) for s in splits])
+    if reading == "moving":
+        weights = weights * np.array([s["moving_share"] for s in splits])
+    models = ["calibrated", *table["authors"]]
+    return {
+        m: np.sqrt(np.sum(weights * np.array([s[reading][m] for s in splits]) ** 2, axis=0) / weights.sum(axis=0))
+        for m in models
+    }
+
+
+def cross_validated_markdown(tables: dict[str, dict[str, Any]]) -> str:
+    """Per session and pooled reading: the cross-validated RMS of the calibrated MJCF and of each lab model, and
+    whether the calibrated one is at most the better lab model on each joint; empty where no table has row
+    counts."""
+    lines = []
+    for t in tables.values():
+        for reading in POOLED_READINGS:
+            pooled = cross_validated(t, reading)
+            if pooled is None:
+                continue
+            best = np.min([pooled[a] for a in t["authors"]], axis=0)
+            labs = "; ".join(f"{a}: {pooled[a][0]:.4f} / {pooled[a][1]:.4f}" for a in t["authors"])
+            cal, lab = (" / ".join(f"{v:.4f}" for v in x) for x in (pooled["calibrated"], best))
+            won = _yes_no(_at_most(pooled["calibrated"], best))
+            lines.append(f"| {t['session']} | {reading} | {cal} | {labs} | {lab} | {won} |")
+    if not lines:
+        return ""
+    head = "| session | reading | calibrated | lab models | better lab model | calibrated <= it |"
+    return "\n".join([head, "|---|---|---|---|---|---|", *lines])
+
+
+def _cross_validated_wins(tables: dict[str, dict[str, Any]]) -> dict[str, int] | None:
+    """Per pooled reading: the joints of every session whose cross-validated RMS (`cross_validated`) is at most the
+    better lab model's; None where a table lacks row counts."""
+    won = dict.fromkeys(POOLED_READINGS, 0)
+    for t in tables.values():
+        for r in POOLED_READINGS:
+            pooled = cross_validated(t, r)
+            if pooled is None:
+                return None
+            won[r] += sum(_at_most(pooled["calibrated"], np.min([pooled[a] for a in t["authors"]], axis=0)))
+    return won
+
+
 def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
     """One line per judging reading: the sum of the held-out RMS over every split and joint, the joints and the
     splits (both joints) at most the lab's best model."""
@@ -518,6 +578,14 @@ def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
         total, joints, splits, n = _totals(tables, reading, "calibrated")
         won = f"{joints} of {n} joints and {splits} of {n_splits} splits"
         lines.append(f"{reading}: sum {total:.4f} N m, {won} <= the lab's best")
+    pooled = _cross_validated_wins(tables)
+    if pooled is not None:
+        n_pooled = sum(len(t["joints"]) for t in tables.values())
+        lines.append(
+            "cross-validated (every held-out row of a session, each file held out once): "
+            + ", ".join(f"{r} {pooled[r]} of {n_pooled}" for r in POOLED_READINGS)
+            + " joints <= the better lab model"
+        )
     if all("calibrated_all" in s["torque_rms"] for t in tables.values() for s in t["splits"]):
         total, joints, splits, n = _totals(tables, "torque_rms", "calibrated_all")
         won = f"{joints} of {n} joints and {splits} of {n_splits} files"
@@ -773,6 +841,18 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
             *(f"- {line}" for line in lofo_summary(result["lofo"]).split("\n")),
             "",
         ]
+        pooled = cross_validated_markdown(result["lofo"])
+        if pooled:
+            md += [
+                "Each session over every held-out row (each file held out once, weighed by its judged rows; in "
+                "`moving`, by the rows each joint keeps): the leave-one-file-out torque RMS of the calibrated MJCF, "
+                "the session's cross-validated error on files the fit never saw, against each lab model's on the "
+                "same rows and the better of them per joint. The lab's models were fitted on their whole sessions, "
+                "these files among them.",
+                "",
+                pooled,
+                "",
+            ]
         fewer = fewer_files_markdown(result["lofo"])
         if fewer:
             md += [

@@ -117,6 +117,43 @@ def test_the_lofo_summary_counts_the_diagnosis_in_sample_bound_on_its_own_line()
     assert "calibrated, all files" not in _lofo_markdown(table)
 
 
+def test_the_cross_validated_rms_pools_every_held_out_row_of_a_session() -> None:
+    """`bench.diagnose.cross_validated`: each split weighs by its judged rows (in `moving`, by the rows each joint
+    keeps), so a long file lost by a little outweighs a short one won by a lot; the summary counts the joints whose
+    pooled RMS is at most the better lab model's, and tables without row counts give no such line."""
+    from bench.diagnose import cross_validated, cross_validated_markdown, lofo_summary
+
+    splits = [
+        _split("a.csv", [0.3, 0.1], [0.1, 0.1], [0.2, 0.2]),  # shoulder lost by 0.1 on 3000 rows
+        _split("b.csv", [0.1, 0.1], [0.1, 0.1], [0.35, 0.2]),  # shoulder won by 0.25 on 1000 rows
+    ]
+    table = {"session": "X", "authors": ["authors_x"], "joints": ["shoulder", "elbow"], "splits": splits}
+    assert cross_validated(table, "torque_rms") is None and "cross-validated" not in lofo_summary({"X": table})
+    moving = (
+        {"calibrated": [0.25, 0.1], "authors_x": [0.2, 0.2]},
+        {"calibrated": [0.1, 0.1], "authors_x": [0.2, 0.05]},
+    )
+    for s, n, share, m in zip(splits, (3000, 1000), ([1.0, 0.5], [0.5, 1.0]), moving, strict=True):
+        s["judged_rows"], s["moving_share"], s["moving"] = n, share, m
+        s["mujoco_only"] = s["angle_zeroed"] = s["torque_rms"]
+    pooled = cross_validated(table, "torque_rms")
+    assert pooled is not None  # the summed RMS would win the shoulder (0.4 against 0.55); pooled, it is lost
+    np.testing.assert_allclose(pooled["calibrated"], [np.sqrt((3000 * 0.09 + 1000 * 0.01) / 4000), 0.1])
+    np.testing.assert_allclose(pooled["authors_x"], [np.sqrt((3000 * 0.04 + 1000 * 0.35**2) / 4000), 0.2])
+    pooled_moving = cross_validated(table, "moving")
+    assert pooled_moving is not None  # shoulder: 3000 rows and 500; elbow: 1500 and 1000
+    np.testing.assert_allclose(pooled_moving["calibrated"][0], np.sqrt((3000 * 0.0625 + 500 * 0.01) / 3500))
+    np.testing.assert_allclose(pooled_moving["authors_x"][1], np.sqrt((1500 * 0.04 + 1000 * 0.0025) / 2500))
+    line = [x for x in lofo_summary({"X": table}).split("\n") if x.startswith("cross-validated")]
+    assert line == [
+        "cross-validated (every held-out row of a session, each file held out once): torque_rms 1 of 2, "
+        "both_filtered 1 of 2, mujoco_only 1 of 2, angle_zeroed 1 of 2, moving 1 of 2 joints <= the better lab model"
+    ]
+    md = cross_validated_markdown({"X": table})
+    assert "| X | torque_rms | 0.2646 / 0.1000 | authors_x: 0.2462 / 0.2000 | 0.2462 / 0.2000 | **no** / yes |" in md
+    assert "| X | moving | 0.2345 / 0.1000 | authors_x: 0.2000 / 0.1581 | 0.2000 / 0.1581 | **no** / yes |" in md
+
+
 def test_the_judged_files_own_angle_zero_is_found_on_the_file() -> None:
     """`bench.diagnose._angle_zeroed` (the reading that gives every model the held-out file's encoder zero): angles
     logged from a zero 0.07 / 0.05 rad off the model's are put back, and the error left is the noise's."""
