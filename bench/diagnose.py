@@ -525,11 +525,12 @@ def cross_validated(table: dict[str, Any], reading: str) -> dict[str, np.ndarray
     weights = np.array([np.full(len(table["joints"]), s["judged_rows"], float) for s in splits])
     if reading == "moving":
         weights = weights * np.array([s["moving_share"] for s in splits])
-    models = ["calibrated", *table["authors"]]
-    return {
-        m: np.sqrt(np.sum(weights * np.array([s[reading][m] for s in splits]) ** 2, axis=0) / weights.sum(axis=0))
-        for m in models
-    }
+    out = {}
+    for m in ["calibrated", *table["authors"]]:
+        rms = np.array([s[reading][m] for s in splits], float)
+        w = np.where(np.isfinite(rms), weights, 0.0)  # a joint with no rows kept in a split (NaN) weighs nothing
+        out[m] = np.sqrt(np.sum(w * np.nan_to_num(rms) ** 2, axis=0) / w.sum(axis=0))
+    return out
 
 
 def cross_validated_markdown(tables: dict[str, dict[str, Any]]) -> str:
@@ -543,7 +544,7 @@ def cross_validated_markdown(tables: dict[str, dict[str, Any]]) -> str:
             if pooled is None:
                 continue
             best = np.min([pooled[a] for a in t["authors"]], axis=0)
-            labs = "; ".join(f"{a}: {pooled[a][0]:.4f} / {pooled[a][1]:.4f}" for a in t["authors"])
+            labs = "; ".join(f"{a}: " + " / ".join(f"{v:.4f}" for v in pooled[a]) for a in t["authors"])
             cal, lab = (" / ".join(f"{v:.4f}" for v in x) for x in (pooled["calibrated"], best))
             won = _yes_no(_at_most(pooled["calibrated"], best))
             lines.append(f"| {t['session']} | {reading} | {cal} | {labs} | {lab} | {won} |")

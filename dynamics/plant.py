@@ -369,14 +369,17 @@ def _check_finite(path: Path, m: mujoco.MjModel) -> None:
     for field, what, kind in _FINITE_FIELDS:
         values = np.asarray(getattr(m, field), dtype=float)
         values = values.reshape(len(values), -1) if values.size else values.reshape(0, 1)
-        bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
+        finite = np.all(np.isfinite(values), axis=1)
+        if field == "jnt_range":  # an unlimited joint may say range="-inf inf"
+            finite |= ~m.jnt_limited.astype(bool)
+        bad = np.flatnonzero(~finite)
         if bad.size:
             i = int(bad[0])
             if kind == mujoco.mjtObj.mjOBJ_DOF:  # a dof's numbers are its joint's attributes
                 kind, i = mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[i])
             element = kind.name.removeprefix("mjOBJ_").lower()
             shown = " ".join(f"{v:g}" for v in values[int(bad[0])])
-            raise ModelError(f"{path}: {element} {_name(m, kind, i)!r} has a {what} of {shown}, not finite numbers")
+            raise ModelError(f"{path}: {element} {_name(m, kind, i)!r}: its {what} is {shown}, not finite numbers")
     for what, value in (("gravity", m.opt.gravity), ("timestep", [m.opt.timestep])):
         if not np.all(np.isfinite(value)):
             raise ModelError(f"{path}: <option {what}> is {' '.join(f'{v:g}' for v in value)}, not finite numbers")
@@ -397,7 +400,8 @@ def _check_scope(path: Path, m: mujoco.MjModel) -> None:
     if bad:
         raise ModelError(f"{path}: only hinge and slide joints are supported (no free or ball joints); found {bad}")
     # an inactive one applies no force unless a user turns it on; none does under <flag equality="disable"/>
-    equality_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+    equality_off = int(mujoco.mjtDisableBit.mjDSBL_EQUALITY) | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    equality_on = not m.opt.disableflags & equality_off
     active = [e for e in range(m.neq) if m.eq_active0[e] and equality_on]
     if active:
         kinds = [mujoco.mjtEq(m.eq_type[e]).name.removeprefix("mjEQ_").lower() for e in active]

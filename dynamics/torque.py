@@ -20,6 +20,8 @@ feedforward and for checks against the simulator.
 
 from __future__ import annotations
 
+import copy
+
 import mujoco
 import numpy as np
 import pinocchio as pin
@@ -107,17 +109,17 @@ def inverse_dynamics(plant: Plant | mujoco.MjModel, q: np.ndarray, dq: np.ndarra
         (N, nv) joint torques [N m].
     """
     m = plant.mj_model if isinstance(plant, Plant) else plant
+    discrete = int(mujoco.mjtEnableBit.mjENBL_INVDISCRETE)
+    if m.opt.enableflags & discrete:
+        # <flag invdiscrete>: mj_inverse would read qacc as the step's discrete acceleration (and refuses RK4);
+        # these are the states' own, continuous ones. The flag changes nothing in forward simulation: a copy
+        # without it (the caller's model untouched)
+        m = copy.deepcopy(m)
+        m.opt.enableflags &= ~discrete
     d = mujoco.MjData(m)
     out = np.empty_like(np.asarray(q, dtype=float))
-    flags = int(m.opt.enableflags)
-    # <flag invdiscrete>: mj_inverse would read qacc as the step's discrete acceleration (and refuses RK4); these
-    # are the states' own, continuous ones. The flag changes nothing in forward simulation: off for this call only
-    m.opt.enableflags = flags & ~int(mujoco.mjtEnableBit.mjENBL_INVDISCRETE)
-    try:
-        for k in range(len(q)):
-            d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
-            mujoco.mj_inverse(m, d)
-            out[k] = d.qfrc_inverse
-    finally:
-        m.opt.enableflags = flags
+    for k in range(len(q)):
+        d.qpos[:], d.qvel[:], d.qacc[:] = q[k], dq[k], ddq[k]
+        mujoco.mj_inverse(m, d)
+        out[k] = d.qfrc_inverse
     return out

@@ -85,8 +85,25 @@ _MARKUP = (  # a tag in the first 64 KiB of a file that begins with '<': what th
 )
 _BLOCK_ROWS = 200_000  # rows read at a time: a block of a wide file is a few tens of MB
 _FORMAT_PREFIXES = ("q_", "dq_", "ddq_", "tau_cmd_", "tau_")
-# the file line of each data row of the file being read, where blank lines (skipped) shift them from row + 2
-_ROW_LINES: contextvars.ContextVar[np.ndarray | None] = contextvars.ContextVar("_ROW_LINES", default=None)
+
+
+class _RowLines:
+    """The line of each data row of a file being read, found only when a message asks (`_line`): blank lines,
+    skipped by the reader, shift them from row + 2."""
+
+    def __init__(self, file: _TextFile, rows: int) -> None:
+        self.file, self.rows = file, rows
+        self._lines: np.ndarray | None = None
+        self._found = False
+
+    def line(self, row: int) -> int:
+        if not self._found:
+            self._lines, self._found = _row_lines(self.file, self.rows), True
+        return row + 2 if self._lines is None else int(self._lines[row])
+
+
+# the rows' lines of the file being read (`read_measured` sets it for its checks)
+_ROW_LINES: contextvars.ContextVar[_RowLines | None] = contextvars.ContextVar("_ROW_LINES", default=None)
 _TORQUE_LIMIT_FACTOR = 10.0  # a torque whose 99th-percentile size is this many times the actuator's limit is in
 # other units (mN m, N cm) or another column: a motor's peak torque is a few times its rated one, not ten
 _MAX_TORQUE = 1e6  # [N m] (or [N]): no robot joint carries more; the bound where an actuator has no limit
@@ -165,10 +182,15 @@ def read_measured(
     src = str(path)
     file = _text_file(path)
     header, delimiter = _read_header(file)
+    if columns is None and all(_is_number(h) for h in header):  # a mapping may name numbered columns ("0", "1")
+        raise DataError(
+            f"{path}: line 1 holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), not "
+            "column names: the file has no header row; add one naming its columns (time, q_<joint>, tau_<joint>, ...)"
+        )
     sources, ignored = _resolve_columns(plant, header, columns, src)
     labels = _labels(sources)
     arrays, values, rows_read, time_origin = _read_body(file, header, delimiter, sources, labels, plant)
-    token = _ROW_LINES.set(_row_lines(file, rows_read))
+    token = _ROW_LINES.set(_RowLines(file, rows_read))
     try:
         return _checked(
             src,
@@ -192,12 +214,12 @@ def read_measured(
 def _line(row: int) -> int:
     """The line of the file that data row `row` of the file being read is on (the header is line 1)."""
     lines = _ROW_LINES.get()
-    return row + 2 if lines is None else int(lines[row])
+    return row + 2 if lines is None else lines.line(row)
 
 
 def _row_lines(file: _TextFile, rows: int) -> np.ndarray | None:
     """(rows,) the line of each data row where the file has blank lines among its rows (skipped by the reader);
-    None where it has none (each row on line row + 2): one more pass over such a file only."""
+    None where it has none (each row on line row + 2). A pass or two over the file: for a message only."""
     if _line_count(file) - 1 == rows:
         return None
     lines = []
@@ -539,11 +561,6 @@ def _read_header(file: _TextFile) -> tuple[list[str], str]:
         raise DataError(f"{path}: the header row (line 1) cannot be read as CSV text: {err}") from None
     if not header or header == [""]:
         raise DataError(f"{path}: the file is empty; a header row of column names is expected on line 1")
-    if all(_is_number(h) for h in header):
-        raise DataError(
-            f"{path}: line 1 holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), not "
-            "column names: the file has no header row; add one naming its columns (time, q_<joint>, tau_<joint>, ...)"
-        )
     return header, delimiter
 
 
@@ -1010,7 +1027,10 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
     if same.size:
         k = int(same[0]) + 1
         rounded = ""
-        if same.size > 0.1 * len(steps) and np.any(steps > 0):  # most rows repeat a stamp: rounded when written
+        positive = steps[steps > 0]
+        grid = positive / positive.min() if positive.size else positive
+        if same.size > 0.5 * len(steps) and positive.size and np.allclose(grid, np.round(grid), rtol=0, atol=1e-6):
+            # most rows repeat a stamp, and the stamps move by whole steps of a coarser grid: rounded when written
             rounded = (
                 f"; most rows repeat a time stamp, which moves in steps of {np.min(steps[steps > 0]):.3g} s: the "
                 "time was written with too few decimals to tell the rows apart; write it with more"
@@ -1329,7 +1349,9 @@ def _repair_joint(
     # a step of a count or one more is no jump, however coarse the encoder: where most steps are 0 the noise (a
     # median) and the running rate are 0, and each count read as a slip no velocity allows
     moved = np.abs(s[s != 0])
-    resolution = float(moved.min()) if moved.size else 0.0
+    resolution = float(moved.min()) if moved.size >= max(10, 0.01 * len(s)) else 0.0
+    if resolution and np.mean(moved < 1.5 * resolution) < 0.5:  # the count is most of the steps, or no count
+        resolution = 0.0
     floor = max(_MIN_JUMP, 10.0 * noise, 2.5 * resolution)
     if max_speed is not None:
         _check_max_speed(s, dt_eff, float(max_speed), noise, label=label, src=src)

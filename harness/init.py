@@ -27,7 +27,7 @@ from harness.validate import check_driven
 __all__ = ["main", "system_config_text"]
 
 
-_PLAIN = re.compile(r"[A-Za-z_/.~][A-Za-z0-9_./~+-]*")  # a string YAML reads back as itself, unquoted
+_PLAIN = re.compile(r"[A-Za-z_/~][A-Za-z0-9_./~+-]*")  # a string YAML reads back as itself, unquoted (not .5)
 
 
 def _value(value: object) -> str:
@@ -43,7 +43,7 @@ def _value(value: object) -> str:
         return "true" if value else "false"
     if isinstance(value, str):
         keyword = value.lower() in {"true", "false", "yes", "no", "on", "off", "null", "~"}
-        return value if _PLAIN.fullmatch(value) and not keyword else json.dumps(value)
+        return value if _PLAIN.fullmatch(value) and not keyword else json.dumps(value, ensure_ascii=False)
     return str(value)
 
 

@@ -101,8 +101,9 @@ def simulated_motion(design: FourierDesign, limits: Limits, data: Dataset, torqu
         always = c["samples"] == data.n_samples  # from the start pose on: they overlap wherever the arm goes
         apart = (
             "they touch in every sample, from the start pose on, wherever the arm goes (geoms that overlap in the "
-            "model itself: a body between them, such as a gimbal without geoms, keeps MuJoCo from leaving out the "
-            "pair of a parent and its child; or a link resting on the floor): no clearance keeps them apart; take "
+            'model itself: a body between them, such as a gimbal without geoms, or <flag filterparent="disable"/> '
+            "keeps MuJoCo from leaving out the pair of a parent and its child; or a link resting on the floor): no "
+            "clearance keeps them apart; take "
             'them out of collision (contype="0" conaffinity="0", or an <exclude> of the two bodies)'
             if always
             else "keep them apart (a larger system.limits.clearance_m, which covers the floor plane and the collision "

@@ -152,6 +152,11 @@ def test_the_cross_validated_rms_pools_every_held_out_row_of_a_session() -> None
     md = cross_validated_markdown({"X": table})
     assert "| X | torque_rms | 0.2646 / 0.1000 | authors_x: 0.2462 / 0.2000 | 0.2462 / 0.2000 | **no** / yes |" in md
     assert "| X | moving | 0.2345 / 0.1000 | authors_x: 0.2000 / 0.1581 | 0.2000 / 0.1581 | **no** / yes |" in md
+    splits[1]["moving"] = {"calibrated": [0.1, float("nan")], "authors_x": [0.2, float("nan")]}  # elbow never moves
+    splits[1]["moving_share"] = [0.5, 0.0]
+    pooled_moving = cross_validated(table, "moving")
+    assert pooled_moving is not None  # the NaN of a joint with no rows kept weighs nothing
+    np.testing.assert_allclose([pooled_moving["calibrated"][1], pooled_moving["authors_x"][1]], [0.1, 0.2])
 
 
 def test_the_judged_files_own_angle_zero_is_found_on_the_file() -> None:

@@ -323,6 +323,19 @@ def test_a_row_is_named_by_its_own_line_after_blank_lines(
         read_measured(path, plant, repair=False)
 
 
+def test_a_numbered_header_is_read_through_a_mapping_that_names_its_columns(tmp_path: Path, plant: Plant) -> None:
+    """pandas writes an unnamed frame's header as 0,1,2,...: without a mapping that is no header row (refused as
+    such); a mapping that names those columns reads it."""
+    cols = table()
+    path = write(tmp_path / "numbered.csv", cols)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([",".join(str(i) for i in range(len(cols))), *lines[1:]]) + "\n")
+    with pytest.raises(DataError, match=r"line 1 holds numbers \(0, 1, 2, \.\.\.\), not column names"):
+        read_measured(path, plant)
+    data = read_measured(path, plant, columns={name: str(i) for i, name in enumerate(cols)})
+    np.testing.assert_array_equal(data.q[:, 1], cols["q_elbow"])
+
+
 def test_a_time_written_with_too_few_decimals_is_said_so(tmp_path: Path, plant: Plant) -> None:
     """500 Hz stamps written with two decimals: 0.00, 0.00, 0.01, ... The refusal named the first repeat and the
     count of them, not why."""
@@ -334,6 +347,9 @@ def test_a_time_written_with_too_few_decimals_is_said_so(tmp_path: Path, plant: 
     cols["time"][300] = cols["time"][299]  # one repeat is no rounding
     with pytest.raises(DataError, match=r"1 duplicate time stamp\(s\) in all\)$"):
         read_measured(write(tmp_path / "once.csv", cols), plant)
+    doubled = {k: np.repeat(v, 1 + (np.arange(len(v)) % 5 == 0), axis=0) for k, v in table().items()}
+    with pytest.raises(DataError, match=r"200 duplicate time stamp\(s\) in all\)$"):  # rows written twice
+        read_measured(write(tmp_path / "doubled.csv", doubled), plant)
 
 
 def test_a_coarsely_quantised_angle_is_read_not_refused_as_slips(tmp_path: Path, plant: Plant) -> None:
@@ -347,6 +363,17 @@ def test_a_coarsely_quantised_angle_is_read_not_refused_as_slips(tmp_path: Path,
     cols["q_elbow"][600:] += 0.5  # ten counts at once
     with pytest.raises(DataError, match=r"column 'q_elbow' jumps by 0\.5 between rows 599 and 600"):
         read_measured(write(tmp_path / "slip.csv", cols), plant, repair=False)
+    # a joint at rest reads one value: its only steps are the defect's, which are no count of its encoder
+    rest = table()
+    rest["q_elbow"][:] = -0.2
+    rest["dq_elbow"][:] = 0.0
+    spike, slip = {k: v.copy() for k, v in rest.items()}, rest
+    spike["q_elbow"][500] += 0.3
+    data = read_measured(write(tmp_path / "spike.csv", spike), plant)
+    assert [r.kind for r in data.meta["repairs"]] == ["glitch"] and np.all(data.q[:, 1] == -0.2)
+    slip["q_elbow"][600:] += 0.5
+    with pytest.raises(DataError, match=r"column 'q_elbow' jumps by 0\.5 between rows 599 and 600"):
+        read_measured(write(tmp_path / "rest_slip.csv", slip), plant, repair=False)
 
 
 def test_time_going_backwards_is_refused(tmp_path: Path, plant: Plant) -> None:

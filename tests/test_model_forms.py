@@ -241,13 +241,20 @@ def test_an_inactive_equality_applies_no_force_and_is_no_coupling(tmp_path: Path
     )
 
 
-def test_a_disabled_equality_flag_applies_no_coupling(tmp_path: Path) -> None:
-    """<flag equality="disable"/>: MuJoCo applies no equality; such a model was refused as coupled."""
+@pytest.mark.parametrize("flag", ["equality", "constraint"])
+def test_a_disabled_equality_flag_applies_no_coupling(tmp_path: Path, flag: str) -> None:
+    """<flag equality="disable"/> (or constraint, every constraint): MuJoCo applies no equality; such a model was
+    refused as coupled. An unlimited joint's range="-inf inf" is no number the dynamics read either."""
     xml = _write_form("diaginertia_quat", tmp_path).read_text()
     extra = '<equality><joint name="couple" joint1="j1" joint2="j2"/></equality>'
     off = xml.replace("</mujoco>", extra + "</mujoco>").replace(
-        '<compiler angle="radian"/>', '<compiler angle="radian"/><option><flag equality="disable"/></option>'
+        '<compiler angle="radian"/>', f'<compiler angle="radian"/><option><flag {flag}="disable"/></option>'
     )
+    off = off.replace(
+        '<joint name="j1" type="hinge" axis="0 0 1"/>',
+        '<joint name="j1" type="hinge" axis="0 0 1" range="-inf inf" limited="false"/>',
+    )
+    assert 'range="-inf inf"' in off
     path = tmp_path / "off.xml"
     path.write_text(off)
     plant = load_plant(path)
@@ -268,11 +275,11 @@ _MOTORS = '<actuator><motor joint="j1" ctrlrange="-5 5"/><motor joint="j2" ctrlr
                 '<joint name="j2" type="hinge" axis="0 1 0"/>',
                 '<joint name="j2" type="hinge" axis="0 1 0" armature="nan"/>',
             ),
-            r"joint 'j2' has a armature of nan, not finite numbers",
+            r"joint 'j2': its armature is nan, not finite numbers",
         ),
         (
             ('<body name="link2" pos="0.3 0 0"', '<body name="link2" pos="nan 0 0"'),
-            r"body 'link2' has a pos of nan 0 0, not finite numbers",
+            r"body 'link2': its pos is nan 0 0, not finite numbers",
         ),
         (
             ('<compiler angle="radian"/>', '<compiler angle="radian"/><option gravity="0 0 nan"/>'),

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
+from omegaconf import OmegaConf
 
 from dynamics.actuators import actuation_of
 from dynamics.errors import ModelError
@@ -204,7 +205,7 @@ def test_sysid_init_writes_an_editable_config_that_runs(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "run" / "results.json").read_text())["system"] == results["system"]
 
 
-@pytest.mark.parametrize("folder", ["d: x", "d #1", "true"])
+@pytest.mark.parametrize("folder", ["d: x", "d #1", "robot 🤖"])
 def test_sysid_init_writes_a_path_yaml_reads_back_and_the_name_hydra_chooses_it_by(
     tmp_path: Path, folder: str, capsys: pytest.CaptureFixture
 ) -> None:
@@ -222,6 +223,18 @@ def test_sysid_init_writes_a_path_yaml_reads_back_and_the_name_hydra_chooses_it_
     assert "system=mine\n" in text
     cfg = compose_config(["system=mine"], config_dir=tmp_path / "conf")
     assert cfg.system.mjcf == str(model.resolve()) and cfg.system.name == "arm"
+
+
+@pytest.mark.parametrize(
+    "value", ["true", "No", "~", ".5", ".inf", "a: b", "x #y", "1e3", "robot 🤖", "plain/path.xml", "", "null"]
+)
+def test_sysid_init_writes_every_string_as_yaml_reads_it_back(value: str) -> None:
+    """`harness.init._value`: a string YAML would read as a bool, null, number or comment (or whose escape it would
+    split: a character beyond the BMP) is quoted; a plain path is not."""
+    from harness.init import _value
+
+    assert OmegaConf.create(f"key: {_value(value)}\n").key == value
+    assert _value("plain/path.xml") == "plain/path.xml"
 
 
 @pytest.mark.parametrize("where", ["folder", "under_a_file"])
