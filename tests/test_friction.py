@@ -431,6 +431,7 @@ def test_the_friction_mujoco_applies_is_read_whatever_the_solver_parameters(
     assert not np.any(friction_parameters(m)[0])  # dmin != dmax or a positive solref: not a declared ramp
 
 
+@pytest.mark.skipif(not (ROBOTS / "xarm7_nohand.xml").is_file(), reason="../shared/robots/xarm7_nohand.xml is absent")
 def test_the_xarm7s_default_friction_is_a_wide_ramp_on_its_last_joint_and_the_plant_reads_it() -> None:
     """The Menagerie xArm7 (frictionloss 1 N m, default solver parameters): MuJoCo applies a ramp 7.7 rad/s wide on
     joint 7 (dof_invweight0 7302) with a 9.5 ms lead; `with_applied_friction` gives the plant that friction, and its
@@ -448,6 +449,7 @@ def test_the_xarm7s_default_friction_is_a_wide_ramp_on_its_last_joint_and_the_pl
     assert np.abs(joint_torque(plant, q, dq, ddq)[0] - want)[:, 6].max() > 0.9  # sign(dq): up to 2 Fc off
 
 
+@pytest.mark.skipif(not (ROBOTS / "xarm7_nohand.xml").is_file(), reason="../shared/robots/xarm7_nohand.xml is absent")
 def test_a_ramp_is_kept_where_an_inertia_change_moves_invweight0(tmp_path: Path) -> None:
     """MuJoCo's default ramp is as wide as dof_invweight0: `ramp_solver` gives a joint the width and lead it had
     at another inertia, and a calibrated MJCF whose armature changed keeps the nominal ramp on that joint (read as
@@ -472,6 +474,7 @@ def test_a_ramp_is_kept_where_an_inertia_change_moves_invweight0(tmp_path: Path)
     assert ramp_solver(1.0, 1.0, 1e-3, 1e-9) is None  # an impedance beyond MuJoCo's bounds: no exact ramp
 
 
+@pytest.mark.skipif(not (ROBOTS / "ur5e.xml").is_file(), reason="../shared/robots/ is not beside the project")
 @pytest.mark.parametrize(("arm", "j", "armature"), [("ur5e", 1, 0.0), ("ur5e", 1, 0.5), ("xarm7_nohand", 6, 0.01)])
 def test_mujocos_own_friction_shape_is_written_as_fitted(tmp_path: Path, arm: str, j: int, armature: float) -> None:
     """A Coulomb friction fitted in MuJoCo's own shape (`candidates.SOFT_FRICTION`: Fc sat((dq + ddq / B) / vt),

@@ -343,6 +343,10 @@ def test_a_diagnosis_of_a_calibrated_mjcf_in_its_own_folder_keeps_it(finished_ru
     assert model.read_bytes() == text
 
 
+@pytest.mark.skipif(
+    not (REPO.parent / "shared" / "data" / "dfki_double_pendulum_c1").is_dir(),
+    reason="../shared/data/ is not beside the project (the DFKI lab's reference models)",
+)
 def test_reference_models_given_for_a_robot_they_do_not_fit_are_refused(finished_run: Path, tmp_path: Path) -> None:
     """The DFKI two-joint reference models named explicitly for a one-joint pendulum were dropped without a
     word; `auto` (found beside the data) still skips them, as they belong to another robot's logs."""
