@@ -319,3 +319,21 @@ def test_a_coefficient_that_changes_over_each_record_is_found_and_a_constant_one
     signature = {"correlation": {}, "position_periodic": {"share": 0.0}, "rms_over_noise": 5.0}
     text = describe_signature({"elbow": {**signature, "changes_over_time": {**change, "motion_ratio": 2.0}}})
     assert "from 0.00485 to 0.0351 N m s/rad (the joint's speed changes over the records too (x 2 from" in text, text
+
+
+def test_structure_below_the_verdicts_effect_size_is_said_not_hidden() -> None:
+    """A residual the Ljung-Box test finds structured, with more than the noise in the band but below half the
+    noise floor, passes the verdict as white (an out-of-vocabulary position-dependent viscous friction was
+    `explained` by a plain one so, 2.3 times the in-band noise, p 0.001); it is said in a note. White noise, a
+    residual the test does not reject, and structure the verdict already counts are not."""
+    from identify.diagnose.diagnosis import _weak_structure_notes
+
+    def w(p: float, srms: float, structured: bool = False) -> dict:
+        return {"ljung_box_p": p, "structured_rms": srms, "noise_in_band": 0.0055, "structured": structured}
+
+    floor = np.full(4, 0.034)
+    notes = _weak_structure_notes(
+        ["a", "b", "c", "d"], [w(0.0011, 0.0126), w(0.5, 0.0126), w(0.0011, 0.004), w(1e-9, 0.05, True)], floor
+    )
+    assert len(notes) == 1 and notes[0].startswith("a: the residual left holds 0.0126 N m of structure, 2.3 times")
+    assert "Ljung-Box p = 0.0011" in notes[0] and "(0.017 N m, half the noise floor)" in notes[0]
