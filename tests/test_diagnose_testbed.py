@@ -1054,3 +1054,45 @@ def test_a_hidden_mujoco_frictionloss_is_explained_by_the_shape_mujoco_gives_it(
     assert written.dof_frictionloss[dof] == pytest.approx(first.value, rel=1e-5)  # to_xml keeps 6 digits
     np.testing.assert_array_equal(written.dof_solref[dof], plant.mj_model.dof_solref[dof])  # MuJoCo's own
     np.testing.assert_array_equal(written.dof_solimp[dof], plant.mj_model.dof_solimp[dof])
+
+
+def test_a_long_delay_is_named_alone_at_its_value_not_beside_a_gain() -> None:
+    """A 15 ms sensor delay on a motion up to 3 Hz: the first-order column -d tau/dt leaves 1 - d^2 w^2 / 2 of the
+    torque, which a torque gain took (0.981 +- 0.0005 on the shoulder, beside the delay at 0.015186 +- 4e-5:
+    4.7 std off). The column is now the nominal torque's secant made at the delay fitted, exact there."""
+    from identify.diagnose.testbed import SYSTEMS
+
+    fast = dataclasses.replace(SYSTEMS["two_link"], max_hz=3.0)
+    _, dg = diagnose_case("two_link", [Injected("time_delay", "shoulder", 0.015)], 1, settings=fast)
+    assert [f.name for f in dg.findings] == ["time_delay shoulder"] and dg.verdict == "explained", dg.findings
+    (found,) = dg.findings
+    assert abs(found.value - 0.015) < 3 * found.std, (found.value, found.std)
+
+
+def test_the_delay_column_is_the_nominal_torques_secant_made_at_its_delay() -> None:
+    """`candidates._delayed_secant`: (tau(t - m) - tau(t)) / m record by record, the first row's slope carrying
+    each record back before its start; -d tau / dt at m = 0; and the candidate made again at a delay is that
+    column."""
+    from identify.diagnose.candidates import Signals, _delay_candidate, _delayed_secant
+
+    plant = load_plant("two_link")
+    t = np.concatenate([np.arange(1000) / 500.0, np.arange(800) / 500.0])  # two records, both from t = 0
+    w = 2 * np.pi * 2.0
+    tau = np.column_stack([np.sin(w * t), np.cos(w * t)])
+    dtau = np.column_stack([w * np.cos(w * t), -w * np.sin(w * t)])
+    n, nv = len(t), plant.nv
+    s = Signals(
+        time=t, q=np.zeros((n, nv)), dq=np.zeros((n, nv)), ddq=np.zeros((n, nv)), tau=tau, tau_nominal=tau,
+        dtau_dq=np.zeros((n, nv, nv)), dtau_dt=dtau, regressor=np.zeros((n, nv, 10 * nv)),
+        record=np.repeat([0, 1], [1000, 800]), actuated=np.ones(nv, bool),
+    )  # fmt: skip
+    m = 0.015
+    want = (np.sin(w * (t - m)) - np.sin(w * t)) / m
+    inside = t >= m
+    np.testing.assert_allclose(_delayed_secant(s, 0, m)[inside], want[inside], atol=2e-3 * w)  # linear interp
+    early = ((t[~inside] - m) * w - np.sin(w * t[~inside])) / m  # sin(0) + (t - m) w: the first row's slope
+    np.testing.assert_allclose(_delayed_secant(s, 0, m)[~inside], early, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(_delayed_secant(s, 1, 0.0), -dtau[:, 1])
+    cand = _delay_candidate(plant, 0, 0.0)
+    assert cand.made_at == 0.0 and cand.remake is not None
+    np.testing.assert_array_equal(cand.remake(m).build(s)[:, 0, 0], _delayed_secant(s, 0, m))
