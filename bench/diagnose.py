@@ -533,38 +533,33 @@ def cross_validated(table: dict[str, Any], reading: str) -> dict[str, np.ndarray
     return out
 
 
-def cross_validated_markdown(tables: dict[str, dict[str, Any]]) -> str:
-    """Per session and pooled reading: the cross-validated RMS of the calibrated MJCF and of each lab model, and
-    whether the calibrated one is at most the better lab model on each joint; empty where no table has row
-    counts."""
-    lines = []
+def _pooled(tables: dict[str, dict[str, Any]]) -> list[tuple[dict[str, Any], str, dict[str, np.ndarray], np.ndarray]]:
+    """(table, reading, its `cross_validated` RMS per model, the better lab model's (nv,)) for every session and
+    pooled reading; empty where a table lacks row counts."""
+    out = []
     for t in tables.values():
         for reading in POOLED_READINGS:
             pooled = cross_validated(t, reading)
             if pooled is None:
-                continue
-            best = np.min([pooled[a] for a in t["authors"]], axis=0)
-            labs = "; ".join(f"{a}: " + " / ".join(f"{v:.4f}" for v in pooled[a]) for a in t["authors"])
-            cal, lab = (" / ".join(f"{v:.4f}" for v in x) for x in (pooled["calibrated"], best))
-            won = _yes_no(_at_most(pooled["calibrated"], best))
-            lines.append(f"| {t['session']} | {reading} | {cal} | {labs} | {lab} | {won} |")
+                return []
+            out.append((t, reading, pooled, np.min([pooled[a] for a in t["authors"]], axis=0)))
+    return out
+
+
+def cross_validated_markdown(tables: dict[str, dict[str, Any]]) -> str:
+    """Per session and pooled reading: the cross-validated RMS of the calibrated MJCF and of each lab model, and
+    whether the calibrated one is at most the better lab model on each joint; empty where a table lacks row
+    counts."""
+    lines = []
+    for t, reading, pooled, best in _pooled(tables):
+        labs = "; ".join(f"{a}: " + " / ".join(f"{v:.4f}" for v in pooled[a]) for a in t["authors"])
+        cal, lab = (" / ".join(f"{v:.4f}" for v in x) for x in (pooled["calibrated"], best))
+        won = _yes_no(_at_most(pooled["calibrated"], best))
+        lines.append(f"| {t['session']} | {reading} | {cal} | {labs} | {lab} | {won} |")
     if not lines:
         return ""
     head = "| session | reading | calibrated | lab models | better lab model | calibrated <= it |"
     return "\n".join([head, "|---|---|---|---|---|---|", *lines])
-
-
-def _cross_validated_wins(tables: dict[str, dict[str, Any]]) -> dict[str, int] | None:
-    """Per pooled reading: the joints of every session whose cross-validated RMS (`cross_validated`) is at most the
-    better lab model's; None where a table lacks row counts."""
-    won = dict.fromkeys(POOLED_READINGS, 0)
-    for t in tables.values():
-        for r in POOLED_READINGS:
-            pooled = cross_validated(t, r)
-            if pooled is None:
-                return None
-            won[r] += sum(_at_most(pooled["calibrated"], np.min([pooled[a] for a in t["authors"]], axis=0)))
-    return won
 
 
 def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
@@ -579,12 +574,15 @@ def lofo_summary(tables: dict[str, dict[str, Any]]) -> str:
         total, joints, splits, n = _totals(tables, reading, "calibrated")
         won = f"{joints} of {n} joints and {splits} of {n_splits} splits"
         lines.append(f"{reading}: sum {total:.4f} N m, {won} <= the lab's best")
-    pooled = _cross_validated_wins(tables)
-    if pooled is not None:
+    pooled = _pooled(tables)
+    if pooled:
+        won = dict.fromkeys(POOLED_READINGS, 0)
+        for _, reading, rms, best in pooled:
+            won[reading] += sum(_at_most(rms["calibrated"], best))
         n_pooled = sum(len(t["joints"]) for t in tables.values())
         lines.append(
             "cross-validated (every held-out row of a session, each file held out once): "
-            + ", ".join(f"{r} {pooled[r]} of {n_pooled}" for r in POOLED_READINGS)
+            + ", ".join(f"{r} {won[r]} of {n_pooled}" for r in POOLED_READINGS)
             + " joints <= the better lab model"
         )
     if all("calibrated_all" in s["torque_rms"] for t in tables.values() for s in t["splits"]):

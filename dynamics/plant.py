@@ -380,10 +380,9 @@ def _check_finite(path: Path, m: mujoco.MjModel) -> None:
             element = kind.name.removeprefix("mjOBJ_").lower()
             shown = " ".join(f"{v:g}" for v in values[int(bad[0])])
             raise ModelError(f"{path}: {element} {_name(m, kind, i)!r}: its {what} is {shown}, not finite numbers")
-    for what, value in (("gravity", m.opt.gravity), ("timestep", [m.opt.timestep])):
-        if not np.all(np.isfinite(value)):
-            raise ModelError(f"{path}: <option {what}> is {' '.join(f'{v:g}' for v in value)}, not finite numbers")
-    if not m.opt.timestep > 0:
+    if not np.all(np.isfinite(m.opt.gravity)):
+        raise ModelError(f"{path}: <option gravity> is {' '.join(f'{v:g}' for v in m.opt.gravity)}, not finite numbers")
+    if not 0 < m.opt.timestep < np.inf:
         raise ModelError(f'{path}: <option timestep="{m.opt.timestep:g}"> must be > 0 (the physics step [s])')
 
 

@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from decimal import ROUND_FLOOR, Decimal, InvalidOperation
-from functools import partial
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -93,13 +93,13 @@ class _RowLines:
 
     def __init__(self, file: _TextFile, rows: int) -> None:
         self.file, self.rows = file, rows
-        self._lines: np.ndarray | None = None
-        self._found = False
+
+    @cached_property
+    def lines(self) -> np.ndarray | None:
+        return _row_lines(self.file, self.rows)
 
     def line(self, row: int) -> int:
-        if not self._found:
-            self._lines, self._found = _row_lines(self.file, self.rows), True
-        return row + 2 if self._lines is None else int(self._lines[row])
+        return row + 2 if self.lines is None else int(self.lines[row])
 
 
 # the rows' lines of the file being read (`read_measured` sets it for its checks)
@@ -190,23 +190,105 @@ def read_measured(
     sources, ignored = _resolve_columns(plant, header, columns, src)
     labels = _labels(sources)
     arrays, values, rows_read, time_origin = _read_body(file, header, delimiter, sources, labels, plant)
-    token = _ROW_LINES.set(_RowLines(file, rows_read))
-    try:
-        return _checked(
-            src,
-            plant,
-            sources,
-            ignored,
-            labels,
-            arrays,
-            values,
-            rows_read,
-            time_origin,
-            repair=repair,
-            resample=resample,
-            max_speed=max_speed,
-            min_samples=min_samples,
+    with _lines_of(file, rows_read):  # every message below names a row by its own line of the file
+        _check_length(rows_read, max(min_samples, 2), src, "rows")  # first: the checks below need a time step
+        _check_finite(values, labels, src)
+        t = values["time"]
+        _check_time(t, sources["time"], labels["time"], src)
+        names = plant.joint_names
+        del values
+        start = _startup_rows(t)
+        # first: a gap reads as a wrong scale below
+        _check_gaps(t[start:], np.arange(start, len(t)), labels["time"], src)
+        _check_angle_units(plant, t, arrays, labels, src)
+        _check_torque_units(plant, arrays, labels, sources, src)
+
+        rows = np.arange(len(t))
+        repairs: list[Repair] = []
+        if start:
+            steps = np.diff(t[: start + 1]) * 1e3
+            repairs.append(
+                Repair(
+                    "startup_trim",
+                    "time",
+                    tuple(range(start)),
+                    f"dropped the first {start} rows (t < {t[start]:.6g} s): start-up steps of {steps.min():.3g}-"
+                    f"{steps.max():.3g} ms against the median {np.median(np.diff(t)) * 1e3:.4g} ms",
+                )
+            )
+            t, rows, arrays = t[start:], rows[start:], _cut(arrays, start, len(t))
+
+        head, tail = 0, 0
+        q = arrays["q"]
+        assert q is not None
+        for j, n in enumerate(names):
+            dq = arrays["dq"]
+            with np.errstate(over="ignore", invalid="ignore"):  # a glitch near the largest double overflows its steps
+                fixed, found, h, tl = _repair_joint(
+                    t,
+                    q[:, j],
+                    None if dq is None else dq[:, j],
+                    max_speed=max_speed,
+                    label=labels[f"q_{n}"],
+                    rows=rows,
+                    src=src,
+                    repair=repair,
+                )
+            q[:, j] = fixed
+            repairs += found
+            head, tail = max(head, h), max(tail, tl)
+        arrays["q"] = q
+        if head or tail:
+            t, rows, arrays = t[head : len(t) - tail], rows[head : len(t) - tail], _cut(arrays, head, len(t) - tail)
+        repairs += _fit_joint_ranges(t, arrays["q"], plant, labels=labels, rows=rows, src=src, repair=repair)
+
+        for key in ("tau", "tau_cmd"):
+            torque = arrays[key]
+            if torque is None:
+                continue
+            for j, n in enumerate(names):
+                label = labels.get(f"{key}_{n}")
+                if label is not None:
+                    torque[:, j], found = _torque_spikes(
+                        t, torque[:, j], label=label, rows=rows, src=src, repair=repair
+                    )
+                    repairs += found
+        logged = {k: arrays[k] for k in ("tau", "tau_cmd")}  # the torques as logged, before any resampling
+        t, arrays, resampled = _regularise(t, arrays, rows, resample=resample, label=labels["time"], src=src)
+        if resampled is not None:
+            repairs.append(resampled)
+        _check_length(len(t), min_samples, src, "rows left after the repairs")
+        meta = {
+            "repairs": tuple(repairs),
+            "columns": {name: _describe(c) for name, c in sources.items()},
+            "ignored_columns": tuple(ignored),
+            "rows_read": rows_read,
+            "sample_rate_hz": float(1.0 / np.median(np.diff(t))),
+            "time_origin_s": time_origin,
+        }
+        if resampled is not None:  # interpolation blurs a torque's plateau at a limit: keep the logged values
+            meta.update({f"logged_{k}": v.copy() for k, v in logged.items() if v is not None})
+        q_out, tau_out = arrays["q"], arrays["tau"]
+        assert q_out is not None and tau_out is not None
+        return Dataset(
+            time=t,
+            q=q_out,
+            tau=tau_out,
+            joint_names=names,
+            actuated=np.asarray(plant.actuated, bool),
+            dq=arrays["dq"],
+            tau_cmd=arrays["tau_cmd"],
+            source=src,
+            meta=meta,
         )
+
+
+@contextmanager
+def _lines_of(file: _TextFile, rows: int) -> Iterator[None]:
+    """Within it, `_line` gives the lines of `file`'s `rows` data rows."""
+    token = _ROW_LINES.set(_RowLines(file, rows))
+    try:
+        yield
     finally:
         _ROW_LINES.reset(token)
 
@@ -229,113 +311,6 @@ def _row_lines(file: _TextFile, rows: int) -> np.ndarray | None:
             if text.rstrip("\r\n"):
                 lines.append(number)
     return np.array(lines[:rows]) if len(lines) >= rows else None
-
-
-def _checked(
-    src: str,
-    plant: Plant,
-    sources: dict[str, _Column],
-    ignored: list[str],
-    labels: dict[str, str],
-    arrays: dict[str, np.ndarray | None],
-    values: dict[str, np.ndarray],
-    rows_read: int,
-    time_origin: float,
-    *,
-    repair: bool,
-    resample: bool,
-    max_speed: float | None,
-    min_samples: int,
-) -> Dataset:
-    """`read_measured` once the file `src` is read (`_read_body`'s arrays): its checks and repairs, and the
-    dataset."""
-    _check_length(rows_read, max(min_samples, 2), src, "rows")  # first: the checks below need a time step
-    _check_finite(values, labels, src)
-    t = values["time"]
-    _check_time(t, sources["time"], labels["time"], src)
-    names = plant.joint_names
-    del values
-    start = _startup_rows(t)
-    _check_gaps(t[start:], np.arange(start, len(t)), labels["time"], src)  # first: a gap reads as a wrong scale below
-    _check_angle_units(plant, t, arrays, labels, src)
-    _check_torque_units(plant, arrays, labels, sources, src)
-
-    rows = np.arange(len(t))
-    repairs: list[Repair] = []
-    if start:
-        steps = np.diff(t[: start + 1]) * 1e3
-        repairs.append(
-            Repair(
-                "startup_trim",
-                "time",
-                tuple(range(start)),
-                f"dropped the first {start} rows (t < {t[start]:.6g} s): start-up steps of {steps.min():.3g}-"
-                f"{steps.max():.3g} ms against the median {np.median(np.diff(t)) * 1e3:.4g} ms",
-            )
-        )
-        t, rows, arrays = t[start:], rows[start:], _cut(arrays, start, len(t))
-
-    head, tail = 0, 0
-    q = arrays["q"]
-    assert q is not None
-    for j, n in enumerate(names):
-        dq = arrays["dq"]
-        with np.errstate(over="ignore", invalid="ignore"):  # a glitch near the largest double overflows its steps
-            fixed, found, h, tl = _repair_joint(
-                t,
-                q[:, j],
-                None if dq is None else dq[:, j],
-                max_speed=max_speed,
-                label=labels[f"q_{n}"],
-                rows=rows,
-                src=src,
-                repair=repair,
-            )
-        q[:, j] = fixed
-        repairs += found
-        head, tail = max(head, h), max(tail, tl)
-    arrays["q"] = q
-    if head or tail:
-        t, rows, arrays = t[head : len(t) - tail], rows[head : len(t) - tail], _cut(arrays, head, len(t) - tail)
-    repairs += _fit_joint_ranges(t, arrays["q"], plant, labels=labels, rows=rows, src=src, repair=repair)
-
-    for key in ("tau", "tau_cmd"):
-        torque = arrays[key]
-        if torque is None:
-            continue
-        for j, n in enumerate(names):
-            label = labels.get(f"{key}_{n}")
-            if label is not None:
-                torque[:, j], found = _torque_spikes(t, torque[:, j], label=label, rows=rows, src=src, repair=repair)
-                repairs += found
-    logged = {k: arrays[k] for k in ("tau", "tau_cmd")}  # the torques as logged, before any resampling
-    t, arrays, resampled = _regularise(t, arrays, rows, resample=resample, label=labels["time"], src=src)
-    if resampled is not None:
-        repairs.append(resampled)
-    _check_length(len(t), min_samples, src, "rows left after the repairs")
-    meta = {
-        "repairs": tuple(repairs),
-        "columns": {name: _describe(c) for name, c in sources.items()},
-        "ignored_columns": tuple(ignored),
-        "rows_read": rows_read,
-        "sample_rate_hz": float(1.0 / np.median(np.diff(t))),
-        "time_origin_s": time_origin,
-    }
-    if resampled is not None:  # interpolation blurs a torque's plateau at a limit: keep the logged values
-        meta.update({f"logged_{k}": v.copy() for k, v in logged.items() if v is not None})
-    q_out, tau_out = arrays["q"], arrays["tau"]
-    assert q_out is not None and tau_out is not None
-    return Dataset(
-        time=t,
-        q=q_out,
-        tau=tau_out,
-        joint_names=names,
-        actuated=np.asarray(plant.actuated, bool),
-        dq=arrays["dq"],
-        tau_cmd=arrays["tau_cmd"],
-        source=src,
-        meta=meta,
-    )
 
 
 def read_many(
@@ -1032,7 +1007,7 @@ def _check_time(t: np.ndarray, column: _Column, label: str, src: str) -> None:
         if same.size > 0.5 * len(steps) and positive.size and np.allclose(grid, np.round(grid), rtol=0, atol=1e-6):
             # most rows repeat a stamp, and the stamps move by whole steps of a coarser grid: rounded when written
             rounded = (
-                f"; most rows repeat a time stamp, which moves in steps of {np.min(steps[steps > 0]):.3g} s: the "
+                f"; most rows repeat a time stamp, which moves in steps of {positive.min():.3g} s: the "
                 "time was written with too few decimals to tell the rows apart; write it with more"
             )
         raise DataError(

@@ -187,16 +187,22 @@ def check_output_override(argv: Sequence[str], outputs: Sequence[str] = ()) -> N
 def _overwrite(argv: Sequence[str]) -> bool:
     """Whether a command line sets `overwrite` true, as Hydra reads it: `overwrite=true` in any case (`True`,
     `TRUE`), also as `+overwrite=` or `++overwrite=`; the last setting counts."""
-    values = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("overwrite=")]
-    return bool(values) and values[-1].strip().lower() == "true"
+    value = _last_setting(argv, "overwrite=")
+    return value is not None and value.strip().lower() == "true"
 
 
 def _folder_override(argv: Sequence[str]) -> tuple[str, str | None]:
     """The folder key of a command line (`hydra.sweep.dir=` with -m, else `hydra.run.dir=`) and its last value
     there (None where the command line does not set it)."""
     key = "hydra.sweep.dir=" if ("-m" in argv or "--multirun" in argv) else "hydra.run.dir="
-    values = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith(key)]  # `++key=` sets it too
-    return key, values[-1] if values else None
+    return key, _last_setting(argv, key)
+
+
+def _last_setting(argv: Sequence[str], key: str) -> str | None:
+    """The value a command line gives `key` (with its "="), as Hydra reads it: the last setting counts, and
+    `+key=` and `++key=` set it too; None where it is not set."""
+    values = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith(key)]
+    return values[-1] if values else None
 
 
 def _refuse_held(folder: Path, outputs: Sequence[str], overwrite: bool) -> None:

@@ -327,13 +327,17 @@ def test_structure_below_the_verdicts_effect_size_is_said_not_hidden() -> None:
     `explained` by a plain one so, 2.3 times the in-band noise, p 0.001); it is said in a note. White noise, a
     residual the test does not reject, and structure the verdict already counts are not."""
     from identify.diagnose.diagnosis import _weak_structure_notes
+    from identify.diagnose.residuals import whiteness
 
-    def w(p: float, srms: float, structured: bool = False) -> dict:
-        return {"ljung_box_p": p, "structured_rms": srms, "noise_in_band": 0.0055, "structured": structured}
-
-    floor = np.full(4, 0.034)
-    notes = _weak_structure_notes(
-        ["a", "b", "c", "d"], [w(0.0011, 0.0126), w(0.5, 0.0126), w(0.0011, 0.004), w(1e-9, 0.05, True)], floor
-    )
-    assert len(notes) == 1 and notes[0].startswith("a: the residual left holds 0.0126 N m of structure, 2.3 times")
-    assert "Ljung-Box p = 0.0011" in notes[0] and "(0.017 N m, half the noise floor)" in notes[0]
+    fs, n = 400.0, 6000
+    rng = np.random.default_rng(0)
+    t = np.arange(n) / fs
+    noise = rng.normal(0.0, 0.034, (n, 4))
+    slow = np.sin(2 * np.pi * 0.7 * t)
+    residual = noise + np.column_stack([0.0126 * np.sqrt(2) * slow, 0 * t, 0.004 * np.sqrt(2) * slow, 0.3 * slow])
+    white = whiteness(residual, np.full(4, 0.034), fs)
+    assert [w["weak"] for w in white] == [True, False, False, False], white  # white noise, too little, counted
+    assert white[3]["structured"] and white[0]["effect_size"] == pytest.approx(0.017)
+    notes = _weak_structure_notes(["a", "b", "c", "d"], white)
+    assert len(notes) == 1 and notes[0].startswith("a: the residual left holds 0.01"), notes
+    assert "times the noise in the band (Ljung-Box p = " in notes[0] and "(0.017 N m, half the noise floor)" in notes[0]

@@ -1071,7 +1071,7 @@ def diagnose(
             for f in pinned
         ]
         + _at_bound_notes(findings)
-        + _weak_structure_notes(names, white_cal if findings else white_nom, kept)
+        + _weak_structure_notes(names, white_cal if findings else white_nom)
         + [
             f"{s.candidate.effect}: {', '.join(s.held_nominal)} not refitted (nominal): on these records they act "
             "much as torque offsets, and refitting them did not lower the error on the records held out in turn"
@@ -2376,25 +2376,22 @@ _BEYOND_RANGE = {
 }
 
 
-def _weak_structure_notes(names: Sequence[str], white: list[dict[str, Any]], floor: np.ndarray) -> list[str]:
+def _weak_structure_notes(names: Sequence[str], white: list[dict[str, Any]]) -> list[str]:
     """Per joint whose judged residual (`whiteness`: the calibrated one where effects were found, else the
-    nominal) holds structure the Ljung-Box test finds and more than the noise in the band, yet below the
-    verdict's effect size (half the noise floor): said, so that a white verdict is not read as no structure at
-    all. An effect that small (an out-of-vocabulary position-dependent viscous friction of 0.05 N m s/rad on the
-    two-link arm left 2.3 times the in-band noise, p 0.001) is not named; clean logs of MuJoCo's own servos reach
-    2.8 times (the SO-ARM100's first joint), so a lower threshold would call clean data structured."""
+    nominal) is `weak`ly structured (the Ljung-Box test finds structure, more than the noise in the band, yet
+    below the verdict's effect size): said, so that a white verdict is not read as no structure at all. An effect
+    that small (an out-of-vocabulary position-dependent viscous friction of 0.05 N m s/rad on the two-link arm
+    left 2.3 times the in-band noise, p 0.001) is not named; clean logs of MuJoCo's own servos reach 2.8 times
+    (the SO-ARM100's first joint), so a lower threshold would call clean data structured."""
     return [
         f"{names[j]}: the residual left holds {w['structured_rms']:.3g} N m of structure, "
         f"{w['structured_rms'] / w['noise_in_band']:.1f} times the noise in the band (Ljung-Box p = "
-        f"{w['ljung_box_p']:.2g}), below the verdict's effect size ({0.5 * floor[j]:.3g} N m, half the noise "
+        f"{w['ljung_box_p']:.2g}), below the verdict's effect size ({w['effect_size']:.3g} N m, half the noise "
         "floor): an effect too small to name on these records, or colour of the noise; longer or larger motions "
         "would tell"
         for j, w in enumerate(white)
-        if not w["structured"] and w["ljung_box_p"] < _WEAK_ALPHA and w["structured_rms"] > w["noise_in_band"]
+        if w["weak"]
     ]
-
-
-_WEAK_ALPHA = 0.01  # the Ljung-Box level of `residuals.whiteness`, for `_weak_structure_notes`
 
 
 def _at_bound_notes(findings: list[Finding]) -> list[str]:

@@ -147,7 +147,9 @@ def whiteness(
 
     Returns:
         One dict per joint: `ljung_box_p`, `structured_rms` [N m], `noise_in_band` [N m] (the sensor's and the
-        angles'), `structured` (bool).
+        angles'), `structured` (bool), `effect_size` [N m] (the least `structured_rms` counted: `min_structure`
+        times the floor), `weak` (bool: not structured, yet the test rejects whiteness and `structured_rms`
+        exceeds the noise in the band: structure below the effect size).
     """
     band = min(band_hz, 0.45 * sample_rate_hz)
     share = min(2 * band / sample_rate_hz, 1.0)
@@ -175,9 +177,17 @@ def whiteness(
         srms = float(np.sqrt(max(excess, 0.0)))
         in_band = max(float(np.sqrt(expected)), 1e-12)
         beyond = float(np.sqrt(states_var[j])) if p < alpha else in_band
-        structured = bool(srms > min_structure * max(float(floor[j]), 1e-12) and srms > max_excess * beyond)
+        effect_size = min_structure * max(float(floor[j]), 1e-12)
+        structured = bool(srms > effect_size and srms > max_excess * beyond)
         out.append(
-            {"ljung_box_p": p, "structured_rms": srms, "noise_in_band": float(in_band), "structured": structured}
+            {
+                "ljung_box_p": p,
+                "structured_rms": srms,
+                "noise_in_band": float(in_band),
+                "structured": structured,
+                "effect_size": effect_size,
+                "weak": bool(not structured and p < alpha and srms > in_band),
+            }
         )
     return out
 
